@@ -1,0 +1,312 @@
+"""Typed, frozen configuration loaded from YAML.
+
+A config is a tree of frozen dataclasses. :func:`load_config` turns a YAML mapping (plus ``--set key=value``
+overrides) into that tree and checks it before any work starts: an unknown key, a wrong type or a value out of
+range is a :class:`~pipeline.errors.ConfigError` whose message starts with the key path::
+
+    objects.pahts: unknown key; valid keys: bundled, coacd, density, ...
+    objects.density: must be > 0, got -1
+
+Range checks live in each dataclass's ``__post_init__`` and raise ``ValueError("field: message")``; the loader
+prefixes the section path. The :func:`check` helper keeps those one-liners short.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import types
+import typing
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from pipeline.errors import ConfigError
+
+__all__ = [
+    "RunConfig",
+    "check",
+    "field_docs",
+    "load_config",
+    "parse_override",
+    "to_dict",
+    "to_yaml",
+]
+
+
+def check(name: str, ok: bool, must: str, value: Any) -> None:
+    """Raise ``ValueError("name: must ..., got value")`` unless ``ok``.
+
+    Parameters
+    ----------
+    name : str
+        The field name, as the user writes it in the config.
+    ok : bool
+        The condition that must hold.
+    must : str
+        What the value must be, e.g. ``"be > 0"``.
+    value : Any
+        The offending value, echoed in the message.
+    """
+    if not ok:
+        raise ValueError(f"{name}: must {must}, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """How a run executes. None of these change what is computed, so none enter a content key."""
+
+    out: str = "out"
+    """Output folder (relative to the current directory)."""
+    jobs: int = 0
+    """Worker processes; 0 means one per CPU core."""
+    backend: Literal["loky", "dask", "ray"] = "loky"
+    """joblib backend: ``loky`` (local processes), ``dask`` (a dask.distributed cluster) or ``ray``."""
+    dask_address: str | None = None
+    """Scheduler address for ``backend: dask`` (e.g. ``tcp://10.0.0.5:8786``); None starts a LocalCluster."""
+    cache_dir: str = ".cache"
+    """Folder for caches that survive ``gen clean`` (CoACD decompositions), relative to the current directory."""
+
+    def __post_init__(self) -> None:
+        check("jobs", self.jobs >= 0, "be >= 0 (0 = all cores)", self.jobs)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Loading
+
+
+def load_config(schema: type, path: str | Path | None = None, overrides: typing.Sequence[str] = ()) -> Any:
+    """Load a YAML config file into the dataclass tree ``schema``.
+
+    Parameters
+    ----------
+    schema : type
+        A dataclass type whose fields are sections (dataclasses) or values; every field needs a default.
+    path : str or Path, optional
+        YAML file. None gives the defaults.
+    overrides : sequence of str
+        ``"key.path=value"`` strings, the value parsed as YAML, applied after the file.
+
+    Returns
+    -------
+    An instance of ``schema``.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the key path of the first problem found.
+    """
+    raw: dict[str, Any] = {}
+    where = "defaults"
+    if path is not None:
+        path = Path(path)
+        where = str(path)
+        try:
+            text = path.read_text()
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read config file ({exc.strerror or exc})") from None
+        try:
+            loaded = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"{path}: the top level must be a mapping of sections, got {type(loaded).__name__}")
+        raw = loaded
+    for item in overrides:
+        key, value = parse_override(item)
+        _set_path(raw, key, value)
+    try:
+        return _build(schema, raw, "")
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def parse_override(item: str) -> tuple[list[str], Any]:
+    """Split ``"a.b.c=value"`` into ``(["a", "b", "c"], yaml_value)``."""
+    if "=" not in item:
+        raise ConfigError(f"--set {item!r}: expected key.path=value")
+    key, _, text = item.partition("=")
+    parts = [p for p in key.strip().split(".")]
+    if not all(parts):
+        raise ConfigError(f"--set {item!r}: empty part in key path {key!r}")
+    try:
+        value = yaml.safe_load(text) if text.strip() else None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"--set {item!r}: value is not valid YAML: {exc}") from None
+    return parts, value
+
+
+def _set_path(raw: dict, parts: list[str], value: Any) -> None:
+    node = raw
+    for i, part in enumerate(parts[:-1]):
+        child = node.get(part)
+        if child is None:
+            child = node[part] = {}
+        if not isinstance(child, dict):
+            raise ConfigError(f"--set {'.'.join(parts)}: {'.'.join(parts[: i + 1])} is not a section")
+        node = child
+    node[parts[-1]] = value
+
+
+def _build(cls: type, raw: Any, prefix: str) -> Any:
+    if raw is None:
+        raw = {}
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{prefix.rstrip('.') or '(top level)'}: must be a mapping, got {raw!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(raw) - set(fields))
+    if unknown:
+        key = unknown[0]
+        raise ConfigError(f"{prefix}{key}: unknown key; valid keys: {', '.join(sorted(fields))}")
+    hints = typing.get_type_hints(cls)
+    kwargs = {}
+    for name in fields:
+        if name in raw:
+            kwargs[name] = _convert(hints[name], raw[name], f"{prefix}{name}")
+        elif dataclasses.is_dataclass(hints[name]):
+            kwargs[name] = _build(hints[name], {}, f"{prefix}{name}.")
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:
+        raise ConfigError(f"{prefix}{exc}") from None
+    except TypeError as exc:  # a field without a default that the file did not set
+        raise ConfigError(f"{prefix.rstrip('.') or '(top level)'}: {exc}") from None
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return "one of " + ", ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (typing.Union, types.UnionType):
+        return " or ".join(_type_name(a) for a in typing.get_args(tp))
+    if origin is tuple:
+        return "a list"
+    if origin is dict:
+        return "a mapping"
+    if tp is type(None):
+        return "null"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(tp: Any, value: Any, path: str) -> Any:
+    """Check ``value`` against the annotation ``tp``; return it in the dataclass's own type (tuples, not lists)."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    bad = ConfigError(f"{path}: must be {_type_name(tp)}, got {value!r}")
+    if dataclasses.is_dataclass(tp):
+        return _build(tp, value, f"{path}.")
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        options = [a for a in args if a is not type(None)]
+        for arg in options:
+            try:
+                return _convert(arg, value, path)
+            except ConfigError as exc:
+                # A container's own error points inside it (e.g. ``sizes[1]``): more useful than the union's.
+                if len(options) == 1 and typing.get_origin(arg) in (tuple, dict) or dataclasses.is_dataclass(arg):
+                    raise exc
+        raise bad
+    if origin is Literal:
+        if value in args:
+            return value
+        raise ConfigError(f"{path}: must be {_type_name(tp)}, got {value!r}")
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise bad
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, f"{path}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{path}: must be a list of {len(args)} values, got {value!r}")
+        return tuple(_convert(a, v, f"{path}[{i}]") for i, (a, v) in enumerate(zip(args, value)))
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise bad
+        key_t, val_t = args
+        return types.MappingProxyType(
+            {_convert(key_t, k, path): _convert(val_t, v, f"{path}.{k}") for k, v in sorted(value.items())}
+        )
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        raise bad
+    if tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise bad
+    if tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise bad
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise bad
+    if tp is Any:
+        return value
+    raise TypeError(f"{path}: unsupported annotation {tp!r} in the config schema")
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Showing
+
+
+def to_dict(obj: Any) -> Any:
+    """Plain-Python (JSON/YAML-able) form of a config tree: dataclasses -> dicts, tuples -> lists."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (tuple, list)):
+        return [to_dict(v) for v in obj]
+    if isinstance(obj, (dict, types.MappingProxyType)):
+        return {str(k): to_dict(v) for k, v in obj.items()}
+    return obj
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """The attribute docstrings of a dataclass (the string literal under each field), by field name."""
+    import ast
+    import inspect
+    import textwrap
+
+    try:
+        source = textwrap.dedent(inspect.getsource(cls))
+    except (OSError, TypeError):
+        return {}
+    tree = ast.parse(source)
+    docs: dict[str, str] = {}
+    body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+    for stmt, nxt in zip(body, body[1:]):
+        if (
+            isinstance(stmt, ast.AnnAssign)
+            and isinstance(stmt.target, ast.Name)
+            and isinstance(nxt, ast.Expr)
+            and isinstance(nxt.value, ast.Constant)
+            and isinstance(nxt.value.value, str)
+        ):
+            docs[stmt.target.id] = " ".join(nxt.value.value.split())
+    return docs
+
+
+def to_yaml(obj: Any, *, comments: bool = True) -> str:
+    """YAML text of a config tree, each key preceded by its field docstring as a comment."""
+    out = io.StringIO()
+    _emit_yaml(obj, out, 0, comments)
+    return out.getvalue()
+
+
+def _emit_yaml(obj: Any, out: io.StringIO, indent: int, comments: bool) -> None:
+    docs = field_docs(type(obj)) if comments else {}
+    pad = "  " * indent
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if f.name in docs:
+            out.write(f"{pad}# {docs[f.name]}\n")
+        if dataclasses.is_dataclass(value):
+            out.write(f"{pad}{f.name}:\n")
+            _emit_yaml(value, out, indent + 1, comments)
+        else:
+            text = yaml.safe_dump({f.name: to_dict(value)}, default_flow_style=True, sort_keys=False, width=1000)
+            out.write(f"{pad}{text.strip()[1:-1]}\n")  # drop the braces of the one-key flow mapping

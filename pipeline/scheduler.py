@@ -1,0 +1,392 @@
+"""Running stages: plan by key, skip what is committed, fan the rest out through joblib, commit results.
+
+The parent process is the only writer of a manifest. Workers write their own shards (atomically, in the stage
+folder) and return an :class:`~pipeline.store.Entry`; the parent appends it. So a kill at any moment leaves
+either a committed shard or nothing, and the next run picks up exactly the tasks that are not committed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+import sys
+import time
+import traceback
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import joblib
+
+from pipeline.config import RunConfig
+from pipeline.errors import ConfigError, StageError
+from pipeline.keys import key_parts, rng_for_key, sha256_file, task_key
+from pipeline.stage import RunContext, Stage, Task, Upstream, topological_order
+from pipeline.store import Entry, Manifest, RunLock, atomic_path, shard_path
+
+BACKENDS = ("loky", "dask", "ray")
+
+
+@dataclasses.dataclass(frozen=True)
+class Project:
+    """A pipeline: its config schema (a dataclass with a ``run: RunConfig`` field) and its stages."""
+
+    name: str
+    schema: type
+    stages: tuple[Stage, ...]
+
+    def stage(self, name: str) -> Stage:
+        for s in self.stages:
+            if s.name == name:
+                return s
+        raise StageError(f"unknown stage {name!r}; choose one of: {', '.join(s.name for s in self.stages)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class PlannedTask:
+    task: Task
+    key: str
+    parts: dict[str, str]
+
+
+@dataclasses.dataclass
+class StageReport:
+    """What one stage did in a run."""
+
+    stage: str
+    total: int = 0
+    ran: int = 0
+    skipped: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+    failures: list[tuple[str, str]] = dataclasses.field(default_factory=list)
+    """(task id, error text) of every failed task, new or remembered."""
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Planning
+
+
+def committed(out: Path, stage: str, *, verify_hash: bool = True) -> dict[str, Entry]:
+    """Successful, intact entries of a stage folder, by key."""
+    manifest = Manifest(out / stage)
+    return {k: e for k, e in manifest.entries().items() if manifest.shard_ok(e, verify_hash=verify_hash)}
+
+
+def upstream_view(
+    out: Path, stage: Stage, current: dict[str, set[str]], *, verify_hash: bool = True
+) -> Upstream:
+    """The committed shards of ``stage``'s inputs whose keys are current, by task id.
+
+    ``current`` maps each upstream stage to the keys its tasks have under the present config (the scheduler
+    plans stages in order, so it knows them). Shards of older configs stay on disk but are invisible here.
+    """
+    entries: dict[str, dict[str, Entry]] = {}
+    for dep in stage.inputs:
+        keys = current.get(dep, set())
+        entries[dep] = {e.task: e for k, e in committed(out, dep, verify_hash=verify_hash).items() if k in keys}
+    return Upstream(out, entries)
+
+
+def plan(stage: Stage, params: Any, upstream: Upstream) -> list[PlannedTask]:
+    """The stage's tasks with their content keys."""
+    tasks = stage.tasks(params, upstream)
+    seen: dict[str, Task] = {}
+    for t in tasks:
+        if t.id in seen:
+            raise StageError(f"{stage.name}: two tasks share the id {t.id!r}; task ids must be unique")
+        seen[t.id] = t
+    file_hashes: dict[str, str] = {}
+    planned = []
+    for t in tasks:
+        hashes = {}
+        for i, path in enumerate(t.inputs):
+            if path not in file_hashes:
+                file_hashes[path] = sha256_file(path)
+            hashes[str(i)] = file_hashes[path]
+        parts = key_parts(
+            stage=stage.name,
+            version=stage.version,
+            params=params,
+            task_id=t.id,
+            payload=t.payload,
+            upstream=upstream.keys(t.needs),
+            input_hashes=hashes,
+        )
+        planned.append(PlannedTask(t, task_key(parts), parts))
+    return planned
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Executing one task (in a worker)
+
+
+def execute_task(
+    stage: Stage, planned: PlannedTask, params: Any, upstream: Upstream, stage_dir: Path, ctx: RunContext
+) -> Entry:
+    """Run one task and write its shard; never raises (a failure becomes a ``failed`` entry)."""
+    start = time.perf_counter()
+    task, key = planned.task, planned.key
+    final = shard_path(stage_dir, key, stage.ext)
+    try:
+        rng = rng_for_key(key)
+        with atomic_path(final) as tmp:
+            meta = stage.run(task, params, upstream, rng, tmp, ctx) or {}
+        return Entry(
+            key=key,
+            task=task.id,
+            status="ok",
+            file=str(final.relative_to(stage_dir)),
+            sha256=sha256_file(final),
+            bytes=final.stat().st_size,
+            seconds=round(time.perf_counter() - start, 4),
+            parts=planned.parts,
+            meta=meta,
+        )
+    except Exception as exc:  # noqa: BLE001 - any task error is recorded, and the run goes on
+        text = f"{type(exc).__name__}: {exc}"
+        if not _is_user_error(exc):
+            text += "\n" + "".join(traceback.format_exception(exc)[-3:])
+        return Entry(
+            key=key,
+            task=task.id,
+            status="failed",
+            seconds=round(time.perf_counter() - start, 4),
+            parts=planned.parts,
+            error=text.strip(),
+        )
+
+
+def _is_user_error(exc: BaseException) -> bool:
+    from pipeline.errors import GenError
+
+    return isinstance(exc, GenError)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Running
+
+
+def resolve_jobs(jobs: int) -> int:
+    """0 -> number of usable cores."""
+    if jobs > 0:
+        return jobs
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+@contextlib.contextmanager
+def parallel_backend(run: RunConfig, jobs: int) -> Iterator[None]:
+    """Set joblib's backend for the run: local processes (loky), a dask.distributed cluster, or ray."""
+    if run.backend == "loky":
+        with joblib.parallel_config(backend="loky"):
+            yield
+        return
+    if run.backend == "dask":
+        try:
+            from dask.distributed import Client, LocalCluster
+        except ImportError:
+            raise ConfigError("run.backend: 'dask' needs the dask[distributed] package installed") from None
+        if run.dask_address:
+            client = Client(run.dask_address)
+            cluster = None
+        else:
+            cluster = LocalCluster(
+                n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
+            )
+            client = Client(cluster)
+        try:
+            with joblib.parallel_config(backend="dask"):
+                yield
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+        return
+    if run.backend == "ray":
+        try:
+            import ray
+            from ray.util.joblib import register_ray
+        except ImportError:
+            raise ConfigError("run.backend: 'ray' needs the ray package installed (pip install 'ray[default]')") from None
+        register_ray()
+        if not ray.is_initialized():
+            ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False)
+        with joblib.parallel_config(backend="ray"):
+            yield
+        return
+    raise ConfigError(f"run.backend: must be one of {', '.join(BACKENDS)}, got {run.backend!r}")
+
+
+def run_pipeline(
+    project: Project,
+    config: Any,
+    targets: Sequence[str] | None = None,
+    *,
+    retry_failed: bool = False,
+    progress: Any = None,
+) -> list[StageReport]:
+    """Run ``targets`` (and what they need) into ``config.run.out``.
+
+    Parameters
+    ----------
+    project : Project
+        The stages and schema.
+    config : dataclass
+        A loaded config; ``config.run`` says where and how.
+    targets : sequence of str, optional
+        Stage names; all stages when None.
+    retry_failed : bool
+        Run again the tasks the manifest records as failed (by default they are reported, not retried: the same
+        key fails the same way).
+    progress : callable, optional
+        ``progress(event, **info)`` hook for a progress display (see :mod:`pipeline.cli`).
+
+    Returns
+    -------
+    list of StageReport, in run order.
+    """
+    run: RunConfig = config.run
+    out = Path(run.out)
+    ctx = RunContext(out=out.resolve(), cache_dir=Path(run.cache_dir).resolve())
+    jobs = resolve_jobs(run.jobs)
+    order = topological_order(project.stages, targets)
+    notify = progress or (lambda event, **info: None)
+    reports = []
+    current: dict[str, set[str]] = {}
+    with RunLock(out), parallel_backend(run, jobs):
+        for stage in order:
+            report, keys = _run_stage(stage, stage.params(config), out, ctx, jobs, retry_failed, notify, current)
+            current[stage.name] = keys
+            reports.append(report)
+    return reports
+
+
+def _run_stage(
+    stage: Stage,
+    params: Any,
+    out: Path,
+    ctx: RunContext,
+    jobs: int,
+    retry_failed: bool,
+    notify: Any,
+    current: dict[str, set[str]],
+) -> tuple[StageReport, set[str]]:
+    start = time.perf_counter()
+    stage_dir = out / stage.name
+    manifest = Manifest(stage_dir)
+    upstream = upstream_view(out, stage, current)
+    planned = plan(stage, params, upstream)
+    report = StageReport(stage.name, total=len(planned))
+    entries = manifest.entries()
+    pending: list[PlannedTask] = []
+    for p in planned:
+        entry = entries.get(p.key)
+        if entry is not None and manifest.shard_ok(entry):
+            report.skipped += 1
+        elif entry is not None and entry.status == "failed" and not retry_failed:
+            report.failed += 1
+            report.failures.append((p.task.id, entry.error or "failed"))
+        else:
+            pending.append(p)
+    notify("stage_start", stage=stage.name, total=len(planned), skipped=report.skipped, remembered=report.failed)
+    if pending:
+        stage_dir.mkdir(parents=True, exist_ok=True)
+        n_jobs = min(jobs, len(pending))
+        calls = (
+            joblib.delayed(execute_task)(stage, p, params, upstream.subset(p.task.needs), stage_dir, ctx)
+            for p in pending
+        )
+        results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(calls)
+        for entry in results:
+            manifest.append(entry)
+            if entry.status == "ok":
+                report.ran += 1
+            else:
+                report.failed += 1
+                report.failures.append((entry.task, entry.error or "failed"))
+            notify("task_done", stage=stage.name, task=entry.task, ok=entry.status == "ok")
+    report.seconds = time.perf_counter() - start
+    report.failures.sort()
+    notify("stage_end", stage=stage.name, report=report)
+    return report, {p.key for p in planned}
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Status
+
+
+@dataclasses.dataclass
+class StageStatus:
+    """Where a stage stands against the current config."""
+
+    stage: str
+    state: str
+    """``done``, ``missing`` (some tasks not committed), ``stale`` (committed under old keys), ``failed``,
+    ``waiting`` (an input stage is not done)."""
+    total: int = 0
+    done: int = 0
+    failed: int = 0
+    missing: int = 0
+    reasons: list[str] = dataclasses.field(default_factory=list)
+
+
+_PART_REASONS = {
+    "scheme": "the key scheme changed",
+    "stage": "the stage version changed",
+    "params": "its params changed",
+    "task": "the task definition changed",
+    "upstream": "an upstream shard changed",
+    "inputs": "an input file changed",
+}
+
+
+def status(project: Project, config: Any, targets: Sequence[str] | None = None) -> list[StageStatus]:
+    """done / missing / stale / failed / waiting for each stage, with the reason for staleness."""
+    out = Path(config.run.out)
+    result = []
+    not_done: set[str] = set()
+    current: dict[str, set[str]] = {}
+    for stage in topological_order(project.stages, targets):
+        waiting = [d for d in stage.inputs if d in not_done]
+        if waiting:
+            result.append(StageStatus(stage.name, "waiting", reasons=[f"needs {', '.join(waiting)} first"]))
+            not_done.add(stage.name)
+            continue
+        manifest = Manifest(out / stage.name)
+        entries = manifest.entries()
+        by_task: dict[str, Entry] = {}
+        for e in entries.values():
+            by_task[e.task] = e
+        planned = plan(stage, stage.params(config), upstream_view(out, stage, current, verify_hash=False))
+        current[stage.name] = {p.key for p in planned}
+        st = StageStatus(stage.name, "done", total=len(planned))
+        reasons: dict[str, int] = {}
+        for p in planned:
+            entry = entries.get(p.key)
+            if entry is not None and manifest.shard_ok(entry, verify_hash=False):
+                st.done += 1
+            elif entry is not None and entry.status == "failed":
+                st.failed += 1
+            else:
+                st.missing += 1
+                old = by_task.get(p.task.id)
+                if old is not None:
+                    changed = [_PART_REASONS.get(k, k) for k in p.parts if old.parts.get(k) != p.parts[k]]
+                    for r in changed or ["its shard is missing or damaged"]:
+                        reasons[r] = reasons.get(r, 0) + 1
+        st.reasons = [f"{n} task(s): {r}" for r, n in sorted(reasons.items())]
+        if st.missing:
+            st.state = "stale" if reasons else "missing"
+            not_done.add(stage.name)
+        elif st.failed:
+            st.state = "failed"
+        result.append(st)
+    return result
+
+
+def print_error(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)

@@ -1,0 +1,171 @@
+"""What a stage is, and what it sees of its upstream stages.
+
+A :class:`Stage` declares its ``name``, its upstream ``inputs``, a hand-bumped ``version``, the shard extension
+it writes, how its work fans out (:meth:`Stage.tasks`) and how one task runs (:meth:`Stage.run`). The engine
+(:mod:`pipeline.scheduler`) does everything else: keys, skipping finished work, parallelism, atomic writes,
+the manifest. A stage knows nothing about scheduling; the engine knows nothing about the domain.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import graphlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import StageError
+from pipeline.store import Entry
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """One unit of work of a stage; its output is one shard."""
+
+    id: str
+    """Unique within the stage (e.g. an object name, ``scene_000012``). Also the name a user sees."""
+    payload: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    """Small JSON-able data the task needs (enters the key)."""
+    inputs: tuple[str, ...] = ()
+    """Raw input files the task reads; their bytes (not their paths) enter the key."""
+    needs: Mapping[str, Sequence[str]] | None = None
+    """Upstream shards the task reads, ``{stage: [task ids]}``; None means every shard of every input stage."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunContext:
+    """Where a task may keep things that are not its output. Nothing here may change a shard's bytes."""
+
+    out: Path
+    """The run's output folder."""
+    cache_dir: Path
+    """Folder for caches keyed by content (e.g. convex decompositions), kept across ``gen clean``."""
+
+
+class Upstream:
+    """Read access to the committed shards of upstream stages.
+
+    Parameters
+    ----------
+    out : Path
+        The run's output folder.
+    entries : dict
+        ``{stage: {task_id: Entry}}`` of successful, verified shards.
+    """
+
+    def __init__(self, out: Path, entries: Mapping[str, Mapping[str, Entry]]):
+        self.out = Path(out)
+        self._entries = {stage: dict(by_id) for stage, by_id in entries.items()}
+
+    def stages(self) -> list[str]:
+        return sorted(self._entries)
+
+    def ids(self, stage: str) -> list[str]:
+        """Task ids of ``stage`` that have a shard, sorted."""
+        return sorted(self._by_stage(stage))
+
+    def entry(self, stage: str, task_id: str) -> Entry:
+        by_id = self._by_stage(stage)
+        if task_id not in by_id:
+            raise StageError(f"{stage}: no finished shard for task {task_id!r}")
+        return by_id[task_id]
+
+    def path(self, stage: str, task_id: str) -> Path:
+        """Path of the shard of ``task_id`` in ``stage``."""
+        entry = self.entry(stage, task_id)
+        assert entry.file is not None
+        return self.out / stage / entry.file
+
+    def key(self, stage: str, task_id: str) -> str:
+        return self.entry(stage, task_id).key
+
+    def meta(self, stage: str, task_id: str) -> dict[str, Any]:
+        """The small metadata the task stored in the manifest."""
+        return dict(self.entry(stage, task_id).meta)
+
+    def keys(self, needs: Mapping[str, Sequence[str]] | None) -> dict[str, dict[str, str]]:
+        """``{stage: {task_id: key}}`` for what a task reads: this enters the task's own key."""
+        return {stage: {tid: self.key(stage, tid) for tid in sorted(ids)} for stage, ids in self._needs(needs).items()}
+
+    def subset(self, needs: Mapping[str, Sequence[str]] | None) -> Upstream:
+        """The part of this view a task reads (what gets shipped to its worker)."""
+        return Upstream(self.out, {s: {t: self.entry(s, t) for t in ids} for s, ids in self._needs(needs).items()})
+
+    def _needs(self, needs: Mapping[str, Sequence[str]] | None) -> dict[str, Sequence[str]]:
+        if needs is None:
+            return {stage: self.ids(stage) for stage in self._entries}
+        unknown = sorted(set(needs) - set(self._entries))
+        if unknown:
+            raise StageError(f"task needs stage {unknown[0]!r}, which is not an input; inputs: {self.stages()}")
+        return dict(needs)
+
+    def _by_stage(self, stage: str) -> dict[str, Entry]:
+        if stage not in self._entries:
+            raise StageError(f"{stage!r} is not an input of this stage; inputs: {', '.join(self.stages()) or 'none'}")
+        return self._entries[stage]
+
+
+class Stage(abc.ABC):
+    """A pipeline stage. Subclasses set the class attributes and implement :meth:`tasks` and :meth:`run`."""
+
+    name: str = ""
+    """Stage name; also its config section and its output folder."""
+    inputs: tuple[str, ...] = ()
+    """Names of the upstream stages whose shards it reads."""
+    version: int = 1
+    """Bump by hand when the stage's semantics or output format change: its outputs become stale."""
+    ext: str = "h5"
+    """Shard file extension (``h5`` or ``parquet``)."""
+
+    def params(self, config: Any) -> Any:
+        """This stage's params: the config section named like the stage."""
+        return getattr(config, self.name)
+
+    @abc.abstractmethod
+    def tasks(self, params: Any, upstream: Upstream) -> list[Task]:
+        """How the work fans out, given the params and the finished upstream shards."""
+
+    @abc.abstractmethod
+    def run(
+        self, task: Task, params: Any, upstream: Upstream, rng: np.random.Generator, out: Path, ctx: RunContext
+    ) -> dict[str, Any]:
+        """Do one task: write its shard to ``out`` (a temp path the engine moves into place).
+
+        Returns small JSON-able metadata for the manifest (row counts, warnings). Raise to fail the task; the
+        message should name the input at fault.
+        """
+
+
+def topological_order(stages: Sequence[Stage], targets: Sequence[str] | None = None) -> list[Stage]:
+    """Stages in dependency order, restricted to ``targets`` and everything they need (all when None)."""
+    by_name = {s.name: s for s in stages}
+    for s in stages:
+        for dep in s.inputs:
+            if dep not in by_name:
+                raise StageError(f"stage {s.name!r} needs unknown stage {dep!r}")
+    wanted: set[str] = set()
+    todo = list(targets) if targets else list(by_name)
+    while todo:
+        name = todo.pop()
+        if name not in by_name:
+            raise StageError(f"unknown stage {name!r}; choose one of: {', '.join(by_name)}")
+        if name not in wanted:
+            wanted.add(name)
+            todo.extend(by_name[name].inputs)
+    sorter = graphlib.TopologicalSorter({n: by_name[n].inputs for n in by_name})
+    try:
+        order = list(sorter.static_order())
+    except graphlib.CycleError as exc:
+        raise StageError(f"stages form a cycle: {exc.args[1]}") from None
+    # Keep the declared order among independent stages, so runs and listings read the same every time.
+    declared = [s.name for s in stages]
+    order.sort(key=lambda n: (_depth(n, by_name), declared.index(n)))
+    return [by_name[n] for n in order if n in wanted]
+
+
+def _depth(name: str, by_name: Mapping[str, Stage]) -> int:
+    deps = by_name[name].inputs
+    return 0 if not deps else 1 + max(_depth(d, by_name) for d in deps)

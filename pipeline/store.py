@@ -1,0 +1,168 @@
+"""The output folder: shard paths, atomic writes, per-stage manifests and the run lock.
+
+Layout::
+
+    OUT/<stage>/<key[:2]>/<key>.<ext>     one shard per task
+    OUT/<stage>/manifest.jsonl            append-only log of finished tasks: the commit point
+    OUT/.lock                             held (flock) by the run writing OUT
+
+A shard without a manifest entry does not exist: a run killed between writing a shard and appending its entry
+simply redoes that task (and writes the same bytes again). A manifest line cut short by a kill is ignored.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import fcntl
+import json
+import os
+import socket
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import LockError
+from pipeline.keys import sha256_file
+
+MANIFEST = "manifest.jsonl"
+
+
+@dataclasses.dataclass(frozen=True)
+class Entry:
+    """One manifest line: the record of a finished (or failed) task."""
+
+    key: str
+    """Content key of the task."""
+    task: str
+    """Task id, unique within its stage (e.g. an object name)."""
+    status: str
+    """``ok`` or ``failed``."""
+    file: str | None = None
+    """Shard path relative to the stage folder (None for a failed task)."""
+    sha256: str | None = None
+    """sha256 of the shard's bytes."""
+    bytes: int = 0
+    """Shard size in bytes."""
+    seconds: float = 0.0
+    """Wall time the task took, in seconds."""
+    parts: dict[str, str] = dataclasses.field(default_factory=dict)
+    """The key's components (see :func:`pipeline.keys.key_parts`), to explain staleness."""
+    meta: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """Small stage-defined metadata (row counts, warnings) that downstream ``tasks()`` may read."""
+    error: str | None = None
+    """Error text of a failed task."""
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), sort_keys=True, separators=(",", ":"))
+
+
+def shard_path(stage_dir: Path, key: str, ext: str) -> Path:
+    """Where the shard of ``key`` lives: ``<stage_dir>/<key[:2]>/<key>.<ext>``."""
+    return stage_dir / key[:2] / f"{key}.{ext}"
+
+
+@contextlib.contextmanager
+def atomic_path(final: Path) -> Iterator[Path]:
+    """Yield a temp path in ``final``'s folder; on success move it onto ``final`` with ``os.replace``.
+
+    The temp file is removed if the body raises, so a failed write never leaves a partial shard behind.
+    """
+    final.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        with open(tmp_path, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp_path, final)
+    finally:
+        if tmp_path.exists():
+            tmp_path.unlink()
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write a small text file atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+class Manifest:
+    """The append-only manifest of one stage folder."""
+
+    def __init__(self, stage_dir: Path):
+        self.stage_dir = Path(stage_dir)
+        self.path = self.stage_dir / MANIFEST
+
+    def entries(self) -> dict[str, Entry]:
+        """The latest entry per key (a later line overrides an earlier one, e.g. a retried failure)."""
+        out: dict[str, Entry] = {}
+        if not self.path.exists():
+            return out
+        with open(self.path) as f:
+            for line in f:
+                line = line.strip()
+                if not line:
+                    continue
+                try:
+                    entry = Entry(**json.loads(line))
+                except (json.JSONDecodeError, TypeError):
+                    continue  # a line cut short by a kill: that task is simply not committed
+                out[entry.key] = entry
+        return out
+
+    def append(self, entry: Entry) -> None:
+        """Commit ``entry``: append one line and fsync, so it survives a kill right after."""
+        self.stage_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "a") as f:
+            f.write(entry.to_json() + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def shard_ok(self, entry: Entry, *, verify_hash: bool = True) -> bool:
+        """True when ``entry`` is a success whose shard exists with the recorded size (and sha256)."""
+        if entry.status != "ok" or entry.file is None:
+            return False
+        path = self.stage_dir / entry.file
+        try:
+            if path.stat().st_size != entry.bytes:
+                return False
+        except OSError:
+            return False
+        return not verify_hash or sha256_file(path) == entry.sha256
+
+
+class RunLock:
+    """An exclusive ``flock`` on ``OUT/.lock``: one run writes an output folder at a time.
+
+    The OS drops the lock when the holder dies (even by ``kill -9``), so a stale lock cannot block a resume.
+    """
+
+    def __init__(self, out: Path):
+        self.path = Path(out) / ".lock"
+        self._fd: int | None = None
+
+    def __enter__(self) -> RunLock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 200).decode(errors="replace").strip() or "unknown"
+            os.close(fd)
+            raise LockError(
+                f"{self.path.parent}: another run is writing this output folder ({holder}); "
+                "wait for it or use another --out"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}".encode())
+        self._fd = fd
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None

@@ -1,0 +1,253 @@
+"""Stage 1, ``objects``: turn mesh files into simulation-ready objects.
+
+One task per mesh file (the bundled set in ``assets/objects`` plus the globs in ``objects.paths``). Each task
+loads, fixes units, repairs, computes mass properties, decomposes into convex parts (CoACD, cached) and finds
+physics-checked stable poses (:mod:`stages.mesh_prep`), then writes one HDF5 shard::
+
+    /mesh/vertices (v, 3) float64 m         /mesh/faces (f, 3) int32
+    /convex/vertices (V, 3) float64 m        /convex/faces (F, 3) int32   (all parts, concatenated)
+    /convex/vertex_offsets (p + 1,) int64    /convex/face_offsets (p + 1,) int64
+    /mass/center_of_mass (3,) m              /mass/inertia (3, 3) kg m^2 about the COM, mesh frame
+    /stable_poses/transforms (n, 4, 4)       /stable_poses/probabilities (n,)
+    attributes: name, source_file, source_sha256, scale, density, mass, volume, watertight,
+                from_convex_hull, repair_notes, warnings, params
+
+A broken file fails its own task with a message naming the file and the reason; the other objects go on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.config import check, to_dict
+from pipeline.errors import ConfigError
+from pipeline.io import read_h5, write_h5
+from pipeline.keys import sha256_file
+from pipeline.stage import RunContext, Stage, Task, Upstream
+from stages.mesh_prep import CoacdParams, PreparedObject, StablePoseParams, prepare_object
+
+ASSETS = Path(__file__).resolve().parent.parent / "assets" / "objects"
+"""The bundled objects and their catalog (name, file, density)."""
+
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb", ".gltf", ".off")
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectsParams:
+    """Settings of the ``objects`` stage (config section ``objects``)."""
+
+    paths: tuple[str, ...] = ()
+    """Glob patterns of extra mesh files (OBJ/STL/PLY/GLB/OFF), relative to the current directory."""
+    bundled: bool = True
+    """Include the bundled objects of ``assets/objects``."""
+    include: tuple[str, ...] = ()
+    """Keep only the objects with these names (file stems); empty keeps all."""
+    scale: float | None = None
+    """Metres per mesh unit for every file; null detects millimetres/centimetres from the size, with a warning."""
+    min_extent: float = 0.005
+    """Smallest plausible largest-extent after unit handling, m; smaller meshes are rejected."""
+    max_extent: float = 0.5
+    """Largest plausible largest-extent after unit handling, m; larger meshes are rejected."""
+    density: float = 700.0
+    """Density for objects that have none of their own, kg/m^3 (bundled objects carry theirs in the catalog)."""
+    densities: dict[str, float] = dataclasses.field(default_factory=dict)
+    """Per-object density overrides by name, kg/m^3."""
+    coacd: CoacdParams = dataclasses.field(default_factory=CoacdParams)
+    """Convex decomposition settings (CoACD)."""
+    stable_poses: StablePoseParams = dataclasses.field(default_factory=StablePoseParams)
+    """Stable pose search and its physics check."""
+
+    def __post_init__(self) -> None:
+        if self.scale is not None:
+            check("scale", self.scale > 0, "be > 0 (or null to detect)", self.scale)
+        check("min_extent", self.min_extent > 0, "be > 0", self.min_extent)
+        check("max_extent", self.max_extent > self.min_extent, "be > min_extent", self.max_extent)
+        check("density", self.density > 0, "be > 0", self.density)
+        for name, rho in self.densities.items():
+            check(f"densities.{name}", rho > 0, "be > 0", rho)
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectRecord:
+    """A prepared object as read back from its shard (what downstream stages use)."""
+
+    name: str
+    vertices: np.ndarray
+    """(v, 3) float64, m, mesh frame."""
+    faces: np.ndarray
+    """(f, 3) int32."""
+    convex_parts: list[tuple[np.ndarray, np.ndarray]]
+    """Convex parts as (vertices (n, 3) float64, faces (m, 3) int32)."""
+    mass: float
+    """kg."""
+    center_of_mass: np.ndarray
+    """(3,) m, mesh frame."""
+    inertia: np.ndarray
+    """(3, 3) kg m^2 about the centre of mass, mesh frame axes."""
+    stable_poses: np.ndarray
+    """(n, 4, 4) transforms placing the mesh frame so the object rests on the plane z = 0."""
+    stable_probabilities: np.ndarray
+    """(n,) probabilities, summing to 1."""
+    attrs: dict[str, Any]
+    """Provenance and flags (source file, scale, density, warnings, ...)."""
+
+
+def catalog() -> dict[str, dict[str, Any]]:
+    """The bundled objects' catalog by name: ``{"file", "density", "description"}``."""
+    entries = json.loads((ASSETS / "catalog.json").read_text())
+    return {e["name"]: e for e in entries}
+
+
+def discover(params: ObjectsParams) -> list[tuple[str, Path, float]]:
+    """(name, path, density) of every object the params select, sorted by name.
+
+    Raises
+    ------
+    ConfigError
+        A glob matching nothing, two files with one name, an ``include`` name that is not found.
+    """
+    found: dict[str, tuple[Path, float]] = {}
+
+    def add(name: str, path: Path, density: float) -> None:
+        if name in found and found[name][0] != path:
+            raise ConfigError(
+                f"objects.paths: two meshes are both named {name!r}: {found[name][0]} and {path}; rename one"
+            )
+        found[name] = (path, params.densities.get(name, density))
+
+    if params.bundled:
+        for name, entry in catalog().items():
+            add(name, ASSETS / entry["file"], float(entry["density"]))
+    for i, pattern in enumerate(params.paths):
+        matches = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
+        meshes = [p for p in matches if p.is_file() and p.suffix.lower() in MESH_SUFFIXES]
+        if not meshes:
+            raise ConfigError(
+                f"objects.paths[{i}]: {pattern!r} matches no mesh file ({', '.join(MESH_SUFFIXES)})"
+            )
+        for path in meshes:
+            add(path.stem, path, params.density)
+    if params.include:
+        missing = sorted(set(params.include) - set(found))
+        if missing:
+            raise ConfigError(
+                f"objects.include: no object named {missing[0]!r}; available: {', '.join(sorted(found))}"
+            )
+        found = {n: v for n, v in found.items() if n in params.include}
+    if not found:
+        raise ConfigError("objects: no objects selected (bundled is false and paths is empty)")
+    return [(name, path, density) for name, (path, density) in sorted(found.items())]
+
+
+class ObjectsStage(Stage):
+    name = "objects"
+    inputs = ()
+    version = 1
+    ext = "h5"
+
+    def tasks(self, params: ObjectsParams, upstream: Upstream) -> list[Task]:
+        return [
+            Task(id=name, payload={"density": density, "suffix": path.suffix.lower()}, inputs=(str(path),))
+            for name, path, density in discover(params)
+        ]
+
+    def run(
+        self,
+        task: Task,
+        params: ObjectsParams,
+        upstream: Upstream,
+        rng: np.random.Generator,
+        out: Path,
+        ctx: RunContext,
+    ) -> dict[str, Any]:
+        path = Path(task.inputs[0])
+        prepared = prepare_object(
+            path,
+            density=float(task.payload["density"]),
+            scale=params.scale,
+            min_extent=params.min_extent,
+            max_extent=params.max_extent,
+            coacd=params.coacd,
+            poses=params.stable_poses,
+            rng=rng,
+            coacd_cache_dir=ctx.cache_dir / "coacd",
+        )
+        write_h5(out, object_tree(task.id, path, prepared, params))
+        return {
+            "mass": prepared.mass.mass,
+            "parts": len(prepared.convex_parts),
+            "stable_poses": int(len(prepared.stable_probabilities)),
+            "warnings": list(prepared.warnings),
+        }
+
+
+def object_tree(name: str, path: Path, prepared: PreparedObject, params: ObjectsParams) -> dict[str, Any]:
+    """The HDF5 layout of one object shard (see the module docstring)."""
+    parts = prepared.convex_parts
+    v_off = np.cumsum([0] + [len(v) for v, _ in parts], dtype=np.int64)
+    f_off = np.cumsum([0] + [len(f) for _, f in parts], dtype=np.int64)
+    mass = prepared.mass
+    return {
+        "@attrs": {
+            "name": name,
+            "source_file": path.name,
+            "source_sha256": sha256_file(path),
+            "scale": float(prepared.scale),
+            "density": float(mass.mass / mass.volume),
+            "mass": float(mass.mass),
+            "volume": float(mass.volume),
+            "watertight": bool(prepared.repair.watertight),
+            "from_convex_hull": bool(mass.from_convex_hull),
+            "repair_notes": list(prepared.repair.notes),
+            "warnings": list(prepared.warnings),
+            "params": to_dict(params),
+        },
+        "mesh": {
+            "vertices": np.asarray(prepared.vertices, dtype=np.float64),
+            "faces": np.asarray(prepared.faces, dtype=np.int32),
+        },
+        "convex": {
+            "vertices": np.concatenate([v for v, _ in parts]).astype(np.float64),
+            "faces": np.concatenate([f for _, f in parts]).astype(np.int32),
+            "vertex_offsets": v_off,
+            "face_offsets": f_off,
+        },
+        "mass": {
+            "center_of_mass": np.asarray(mass.center_of_mass, dtype=np.float64),
+            "inertia": np.asarray(mass.inertia, dtype=np.float64),
+        },
+        "stable_poses": {
+            "transforms": np.asarray(prepared.stable_transforms, dtype=np.float64),
+            "probabilities": np.asarray(prepared.stable_probabilities, dtype=np.float64),
+        },
+    }
+
+
+def read_object(path: str | Path) -> ObjectRecord:
+    """Read an object shard written by the ``objects`` stage."""
+    tree = read_h5(path)
+    conv = tree["convex"]
+    v_off, f_off = conv["vertex_offsets"], conv["face_offsets"]
+    parts = [
+        (conv["vertices"][v_off[i] : v_off[i + 1]], conv["faces"][f_off[i] : f_off[i + 1]])
+        for i in range(len(v_off) - 1)
+    ]
+    attrs = tree["@attrs"]
+    return ObjectRecord(
+        name=attrs["name"],
+        vertices=tree["mesh"]["vertices"],
+        faces=tree["mesh"]["faces"],
+        convex_parts=parts,
+        mass=float(attrs["mass"]),
+        center_of_mass=tree["mass"]["center_of_mass"],
+        inertia=tree["mass"]["inertia"],
+        stable_poses=tree["stable_poses"]["transforms"],
+        stable_probabilities=tree["stable_poses"]["probabilities"],
+        attrs=attrs,
+    )

@@ -1,0 +1,8 @@
+import os
+import sys
+from pathlib import Path
+
+# The toy pipeline module must be importable in joblib worker processes too.
+sys.path.insert(0, str(Path(__file__).parent))
+os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).parent), os.environ.get("PYTHONPATH")]))
+os.environ.setdefault("MUJOCO_GL", "egl")

@@ -1,0 +1,69 @@
+"""The generic CLI on the toy pipeline: run, status, config show, clean, and their error messages."""
+
+from __future__ import annotations
+
+import yaml
+from toy_stages import TOY
+from typer.testing import CliRunner
+
+from pipeline.cli import build_app
+
+app = build_app(TOY)
+runner = CliRunner()
+
+
+def invoke(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_run_then_run_again_says_nothing_to_do(tmp_path):
+    first = invoke("run", "--out", tmp_path / "o", "--jobs", 1)
+    assert first.exit_code == 0, first.output
+    assert "numbers: 4 tasks, ran 4, skipped 0, failed 0" in first.output
+    second = invoke("run", "--out", tmp_path / "o", "--jobs", 1)
+    assert second.exit_code == 0
+    assert "Nothing to do: all 5 task(s) already done (skipped)." in second.output
+
+
+def test_run_one_stage(tmp_path):
+    result = invoke("run", "numbers", "--out", tmp_path / "o", "--jobs", 1)
+    assert result.exit_code == 0 and "sums" not in result.output
+
+
+def test_failures_exit_nonzero_with_a_summary(tmp_path):
+    result = invoke("run", "--out", tmp_path / "o", "--jobs", 1, "--set", "numbers.ids=[a, bad_mesh]")
+    assert result.exit_code == 1
+    assert "1 task(s) failed" in result.output
+    assert "numbers/bad_mesh: InputError: bad_mesh: this input is broken on purpose" in result.output
+
+
+def test_config_errors_exit_2_naming_the_key(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("numbers:\n  sizee: 3\n")
+    result = invoke("run", "--config", cfg, "--out", tmp_path / "o")
+    assert result.exit_code == 2
+    assert "numbers.sizee: unknown key; valid keys: ids, input_file, size, sleep" in result.output
+    assert not (tmp_path / "o").exists()  # reported before any work
+    result = invoke("run", "nope", "--out", tmp_path / "o")
+    assert result.exit_code == 2 and "unknown stage 'nope'" in result.output
+    result = invoke("run", "--backend", "spark", "--out", tmp_path / "o")
+    assert result.exit_code == 2 and "run.backend: must be one of 'loky', 'dask', 'ray'" in result.output
+
+
+def test_status_and_clean(tmp_path):
+    out = tmp_path / "o"
+    invoke("run", "numbers", "--out", out, "--jobs", 1)
+    result = invoke("status", "--out", out)
+    assert result.exit_code == 0
+    lines = {line.split()[1]: line for line in result.output.splitlines() if line.startswith("│")}
+    assert "done" in lines["numbers"] and "4/4" in lines["numbers"]
+    assert "missing" in lines["sums"]
+    assert invoke("clean", "numbers", "--out", out).exit_code == 0
+    assert not (out / "numbers").exists()
+
+
+def test_config_show_prints_loadable_yaml_with_docs():
+    result = invoke("config", "show", "--set", "numbers.size=9")
+    assert result.exit_code == 0
+    assert "# Draws per task." in result.output
+    assert yaml.safe_load(result.output)["numbers"]["size"] == 9

@@ -1,0 +1,119 @@
+"""Config loading: types, ranges, unknown keys and overrides are checked up front, naming the key path."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import pytest
+import yaml
+
+from pipeline.config import RunConfig, check, field_docs, load_config, to_dict, to_yaml
+from pipeline.errors import ConfigError
+
+
+@dataclasses.dataclass(frozen=True)
+class Inner:
+    friction: float = 0.5
+    """Coulomb friction coefficient."""
+    mode: Literal["above", "any"] = "above"
+    """Approach filter."""
+    sizes: tuple[float, float] = (0.1, 0.2)
+    """A range, m."""
+
+    def __post_init__(self) -> None:
+        check("friction", self.friction > 0, "be > 0", self.friction)
+
+
+@dataclasses.dataclass(frozen=True)
+class Root:
+    run: RunConfig = dataclasses.field(default_factory=RunConfig)
+    grasps: Inner = dataclasses.field(default_factory=Inner)
+    names: tuple[str, ...] = ()
+    limit: int | None = None
+    table: dict[str, float] = dataclasses.field(default_factory=dict)
+
+
+def write(tmp_path, data) -> str:
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+def test_defaults_without_file():
+    cfg = load_config(Root)
+    assert cfg == Root()
+
+
+def test_file_values_are_typed(tmp_path):
+    cfg = load_config(Root, write(tmp_path, {"grasps": {"friction": 1, "sizes": [0.05, 0.3]}, "names": ["a", "b"]}))
+    assert cfg.grasps.friction == 1.0 and isinstance(cfg.grasps.friction, float)
+    assert cfg.grasps.sizes == (0.05, 0.3)
+    assert cfg.names == ("a", "b")
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"grasps": {"frction": 1}}, "grasps.frction: unknown key; valid keys: friction, mode, sizes"),
+        ({"grasps": {"friction": -1}}, "grasps.friction: must be > 0, got -1.0"),
+        ({"grasps": {"friction": "high"}}, "grasps.friction: must be float, got 'high'"),
+        ({"grasps": {"mode": "below"}}, "grasps.mode: must be one of 'above', 'any', got 'below'"),
+        ({"grasps": {"sizes": [1]}}, "grasps.sizes: must be a list of 2 values"),
+        ({"limit": 1.5}, "limit: must be int or null, got 1.5"),
+        ({"limit": True}, "limit: must be int or null, got True"),
+        ({"table": {"a": "x"}}, "table.a: must be float"),
+        ({"run": {"jobs": -2}}, "run.jobs: must be >= 0"),
+        ({"run": {"backend": "spark"}}, "run.backend: must be one of 'loky', 'dask', 'ray'"),
+        ({"grasps": 3}, "grasps: must be a mapping"),
+        ({"wat": 1}, "wat: unknown key"),
+    ],
+)
+def test_errors_name_the_key_path(tmp_path, data, message):
+    path = write(tmp_path, data)
+    with pytest.raises(ConfigError) as err:
+        load_config(Root, path)
+    assert message in str(err.value)
+    assert str(err.value).startswith(path)
+
+
+def test_overrides_parse_yaml_and_win(tmp_path):
+    path = write(tmp_path, {"grasps": {"friction": 0.3}})
+    cfg = load_config(Root, path, ["grasps.friction=0.9", "names=[x, y]", "limit=null", "run.out=/tmp/o"])
+    assert cfg.grasps.friction == 0.9
+    assert cfg.names == ("x", "y")
+    assert cfg.limit is None
+    assert cfg.run.out == "/tmp/o"
+
+
+@pytest.mark.parametrize("item, message", [("grasps.friction", "expected key.path=value"), ("a..b=1", "empty part")])
+def test_bad_override_syntax(item, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(Root, None, [item])
+
+
+def test_override_of_unknown_key_is_an_error():
+    with pytest.raises(ConfigError, match="grasps.nope: unknown key"):
+        load_config(Root, None, ["grasps.nope=1"])
+
+
+def test_bad_yaml_and_missing_file(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("grasps: [unclosed")
+    with pytest.raises(ConfigError, match="bad.yaml: not valid YAML"):
+        load_config(Root, bad)
+    with pytest.raises(ConfigError, match="nope.yaml: cannot read config file"):
+        load_config(Root, tmp_path / "nope.yaml")
+    top = tmp_path / "list.yaml"
+    top.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="top level must be a mapping"):
+        load_config(Root, top)
+
+
+def test_yaml_round_trip_with_docs(tmp_path):
+    cfg = load_config(Root, None, ["grasps.friction=0.7", "table={b: 2, a: 1}"])
+    text = to_yaml(cfg)
+    assert "# Coulomb friction coefficient." in text
+    reloaded = load_config(Root, write(tmp_path, yaml.safe_load(text)))
+    assert to_dict(reloaded) == to_dict(cfg)
+    assert field_docs(Inner)["sizes"] == "A range, m."

@@ -1,0 +1,49 @@
+"""Content keys and per-task randomness."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pipeline.keys import canonical_json, key_parts, rng_for_key, task_key
+
+
+@dataclasses.dataclass(frozen=True)
+class P:
+    a: float = 1.0
+    b: tuple[int, ...] = (1, 2)
+
+
+def parts(**change):
+    base = dict(stage="s", version=1, params=P(), task_id="t", payload={}, upstream={}, input_hashes={})
+    base.update(change)
+    return key_parts(**base)
+
+
+def test_canonical_json_ignores_dict_order():
+    assert canonical_json({"b": 1, "a": [1, 2.5]}) == canonical_json({"a": (1, 2.5), "b": 1}) == '{"a":[1,2.5],"b":1}'
+    with pytest.raises(ValueError, match="non-finite"):
+        canonical_json({"x": float("nan")})
+
+
+def test_every_component_changes_the_key():
+    ref = task_key(parts())
+    assert task_key(parts()) == ref
+    changed = [
+        parts(version=2),
+        parts(params=P(a=2.0)),
+        parts(task_id="u"),
+        parts(payload={"x": 1}),
+        parts(upstream={"up": {"t": "k"}}),
+        parts(input_hashes={"0": "ff"}),
+    ]
+    assert len({task_key(p) for p in changed} | {ref}) == len(changed) + 1
+
+
+def test_rng_is_a_pure_function_of_the_key():
+    key = task_key(parts())
+    assert np.array_equal(rng_for_key(key).random(5), rng_for_key(key).random(5))
+    other = task_key(parts(task_id="other"))
+    assert not np.array_equal(rng_for_key(key).random(5), rng_for_key(other).random(5))

@@ -1,0 +1,154 @@
+"""The engine on a toy pipeline: keys, skipping, failures, staleness, determinism across workers, locking."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from toy_stages import TOY
+
+from pipeline.config import load_config
+from pipeline.errors import LockError, StageError
+from pipeline.keys import sha256_file
+from pipeline.repro import shard_hashes
+from pipeline.scheduler import run_pipeline, status
+from pipeline.stage import topological_order
+from pipeline.store import Manifest, RunLock
+
+
+def config(out, *sets):
+    return load_config(TOY.schema, None, [f"run.out={out}", *sets])
+
+
+def by_stage(reports):
+    return {r.stage: r for r in reports}
+
+
+def test_order_puts_inputs_first_and_limits_to_targets():
+    assert [s.name for s in topological_order(TOY.stages)] == ["numbers", "sums"]
+    assert [s.name for s in topological_order(TOY.stages, ["numbers"])] == ["numbers"]
+    with pytest.raises(StageError, match="unknown stage 'nope'; choose one of: sums, numbers"):
+        topological_order(TOY.stages, ["nope"])
+
+
+def test_second_run_skips_everything(tmp_path):
+    cfg = config(tmp_path / "out", "run.jobs=1")
+    first = by_stage(run_pipeline(TOY, cfg))
+    assert (first["numbers"].ran, first["sums"].ran) == (4, 1)
+    second = by_stage(run_pipeline(TOY, cfg))
+    assert (second["numbers"].ran, second["numbers"].skipped) == (0, 4)
+    assert (second["sums"].ran, second["sums"].skipped) == (0, 1)
+
+
+def test_same_bytes_for_one_and_two_workers(tmp_path):
+    run_pipeline(TOY, config(tmp_path / "a", "run.jobs=1"))
+    run_pipeline(TOY, config(tmp_path / "b", "run.jobs=2"))
+    a, b = shard_hashes(tmp_path / "a"), shard_hashes(tmp_path / "b")
+    assert len(a) == 5 and a == b
+
+
+def test_each_task_gets_its_own_rng(tmp_path):
+    from pipeline.io import read_h5
+
+    run_pipeline(TOY, config(tmp_path / "o", "run.jobs=1"))
+    hashes = shard_hashes(tmp_path / "o")
+    assert len({hashes[f"numbers/{i}"] for i in "abcd"}) == 4
+    entries = Manifest(tmp_path / "o" / "numbers").entries().values()
+    draws = [read_h5(tmp_path / "o" / "numbers" / e.file)["x"] for e in entries]
+    assert len({d.tobytes() for d in draws}) == 4
+
+
+def test_changed_param_reruns_that_stage_and_downstream_only(tmp_path):
+    out = tmp_path / "o"
+    run_pipeline(TOY, config(out, "run.jobs=1"))
+    reports = by_stage(run_pipeline(TOY, config(out, "run.jobs=1", "sums.scale=2")))
+    assert reports["numbers"].ran == 0 and reports["sums"].ran == 1
+    reports = by_stage(run_pipeline(TOY, config(out, "run.jobs=1", "numbers.size=6", "sums.scale=2")))
+    assert reports["numbers"].ran == 4 and reports["sums"].ran == 1
+
+
+def test_going_back_to_old_params_reuses_old_shards(tmp_path):
+    out = tmp_path / "o"
+    run_pipeline(TOY, config(out, "run.jobs=1"))
+    before = json.loads((out / "sums" / "manifest.jsonl").read_text().splitlines()[0])
+    run_pipeline(TOY, config(out, "run.jobs=1", "numbers.size=7"))
+    reports = by_stage(run_pipeline(TOY, config(out, "run.jobs=1")))
+    assert reports["numbers"].ran == 0 and reports["sums"].ran == 0
+    # and downstream reads the current upstream shards, not the newest ones
+    assert reports["sums"].skipped == 1 and before["status"] == "ok"
+
+
+def test_input_file_bytes_enter_the_key(tmp_path):
+    data = tmp_path / "input.txt"
+    data.write_text("one")
+    cfg = config(tmp_path / "o", "run.jobs=1", f"numbers.input_file={data}")
+    run_pipeline(TOY, cfg)
+    data.write_text("two")
+    assert by_stage(run_pipeline(TOY, cfg))["numbers"].ran == 4
+    st = {s.stage: s for s in status(TOY, cfg)}
+    assert st["numbers"].state == "done"
+
+
+def test_failed_task_is_recorded_and_the_rest_goes_on(tmp_path):
+    cfg = config(tmp_path / "o", "run.jobs=2", "numbers.ids=[a, bad1, b]")
+    reports = by_stage(run_pipeline(TOY, cfg))
+    assert (reports["numbers"].ran, reports["numbers"].failed) == (2, 1)
+    assert reports["numbers"].failures == [("bad1", "InputError: bad1: this input is broken on purpose")]
+    assert reports["sums"].ran == 1  # downstream runs on what succeeded
+    again = by_stage(run_pipeline(TOY, cfg))
+    assert (again["numbers"].ran, again["numbers"].failed) == (0, 1)  # remembered, not retried
+    retried = by_stage(run_pipeline(TOY, cfg, retry_failed=True))
+    assert (retried["numbers"].ran, retried["numbers"].failed) == (0, 1)
+    st = {s.stage: s for s in status(TOY, cfg)}
+    assert st["numbers"].state == "failed" and st["numbers"].failed == 1
+
+
+def test_shard_without_manifest_entry_does_not_exist(tmp_path):
+    out = tmp_path / "o"
+    cfg = config(out, "run.jobs=1")
+    run_pipeline(TOY, cfg)
+    manifest = out / "numbers" / "manifest.jsonl"
+    lines = manifest.read_text().splitlines()
+    # As if killed after writing the last shard but before committing it, mid-way through the line.
+    manifest.write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:40])
+    reports = by_stage(run_pipeline(TOY, cfg))
+    assert reports["numbers"].ran == 1 and reports["numbers"].skipped == 3
+
+
+def test_damaged_shard_is_redone(tmp_path):
+    out = tmp_path / "o"
+    cfg = config(out, "run.jobs=1")
+    run_pipeline(TOY, cfg)
+    entry = next(iter(Manifest(out / "numbers").entries().values()))
+    path = out / "numbers" / entry.file
+    path.write_bytes(path.read_bytes()[:-1] + b"\x00")
+    assert by_stage(run_pipeline(TOY, cfg))["numbers"].ran == 1
+    assert sha256_file(path) == entry.sha256
+
+
+def test_status_says_why_a_stage_is_stale(tmp_path):
+    out = tmp_path / "o"
+    run_pipeline(TOY, config(out, "run.jobs=1"))
+    st = {s.stage: s for s in status(TOY, config(out, "sums.scale=3"))}
+    assert st["numbers"].state == "done" and st["numbers"].done == 4
+    assert st["sums"].state == "stale" and st["sums"].reasons == ["1 task(s): its params changed"]
+    st = {s.stage: s for s in status(TOY, config(out, "numbers.size=9"))}
+    assert st["numbers"].state == "stale" and "its params changed" in st["numbers"].reasons[0]
+    assert st["sums"].state == "waiting"
+    st = {s.stage: s for s in status(TOY, config(tmp_path / "empty"))}
+    assert st["numbers"].state == "missing" and st["numbers"].missing == 4
+
+
+def test_lock_stops_a_second_writer(tmp_path):
+    out = tmp_path / "o"
+    with RunLock(out):
+        with pytest.raises(LockError, match="another run is writing this output folder"):
+            run_pipeline(TOY, config(out))
+    run_pipeline(TOY, config(out, "run.jobs=1"))  # released
+
+
+def test_dask_backend_gives_the_same_bytes(tmp_path):
+    pytest.importorskip("dask.distributed")
+    run_pipeline(TOY, config(tmp_path / "a", "run.jobs=1"))
+    run_pipeline(TOY, config(tmp_path / "d", "run.jobs=2", "run.backend=dask"))
+    assert shard_hashes(tmp_path / "a") == shard_hashes(tmp_path / "d")
