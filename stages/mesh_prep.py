@@ -70,6 +70,9 @@ _DEGENERATE_AREA_RATIO = 1e-14
 # still 1e-3, so this only catches flat or inside-out meshes.
 _ZERO_VOLUME_RATIO = 1e-9
 
+# Vertices whose smallest principal spread is below this fraction of the largest lie in one plane.
+_FLAT_RATIO = 1e-9
+
 # Numerical noise in the integrated inertia (a flat plate sits exactly on the triangle inequality) is repaired
 # up to this fraction of the trace; anything larger means the mesh itself is inconsistent.
 _INERTIA_FIX_TOLERANCE = 1e-6
@@ -465,6 +468,11 @@ def _check_mesh_contents(mesh: trimesh.Trimesh, path: Path) -> None:
     size = float(np.ptp(vertices[faces.ravel()], axis=0).max())
     if size == 0.0 or np.all(areas <= _DEGENERATE_AREA_RATIO * size**2):
         raise InputError(f"{path}: degenerate mesh (all {len(faces)} faces have zero area)")
+    used = vertices[np.unique(faces)]
+    spread = np.linalg.svd(used - used.mean(axis=0), compute_uv=False)
+    if len(used) < 4 or spread[-1] <= _FLAT_RATIO * spread[0]:
+        # A single triangle or a flat sheet: no volume, no mass, nothing a gripper can close on.
+        raise InputError(f"{path}: flat mesh with zero volume (all {len(used)} vertices lie in one plane)")
 
 
 def _face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
