@@ -9,7 +9,7 @@ returned Typer app.
 import shutil
 import sys
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -18,15 +18,13 @@ from rich.table import Table
 
 from pipeline.config import load_config, to_yaml
 from pipeline.errors import GenError
-from pipeline.store import RunLock
 from pipeline.scheduler import BACKENDS, Project, StageReport, run_pipeline, status
+from pipeline.store import RunLock
 
-ConfigOpt = Annotated[
-    Optional[Path], typer.Option("--config", "-c", help="YAML config file (defaults when omitted).")
-]
-OutOpt = Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder (overrides run.out).")]
+ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config file (defaults when omitted).")]
+OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (overrides run.out).")]
 SetOpt = Annotated[
-    Optional[list[str]], typer.Option("--set", "-s", help="Override a config key: key.path=value (YAML). Repeatable.")
+    list[str] | None, typer.Option("--set", "-s", help="Override a config key: key.path=value (YAML). Repeatable.")
 ]
 
 
@@ -100,11 +98,11 @@ def build_app(project: Project) -> typer.Typer:
 
     @app.command()
     def run(
-        stage: Annotated[Optional[str], typer.Argument(help=f"Stage to run with what it needs: {stage_names}.")] = None,
+        stage: Annotated[str | None, typer.Argument(help=f"Stage to run with what it needs: {stage_names}.")] = None,
         config: ConfigOpt = None,
         out: OutOpt = None,
-        jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", help="Workers (default: all cores).")] = None,
-        backend: Annotated[Optional[str], typer.Option(help=f"joblib backend: {', '.join(BACKENDS)}.")] = None,
+        jobs: Annotated[int | None, typer.Option("--jobs", "-j", help="Workers (default: all cores).")] = None,
+        backend: Annotated[str | None, typer.Option(help=f"joblib backend: {', '.join(BACKENDS)}.")] = None,
         set_: SetOpt = None,
         retry_failed: Annotated[bool, typer.Option("--retry-failed", help="Run failed tasks again.")] = False,
     ) -> None:
@@ -132,7 +130,7 @@ def build_app(project: Project) -> typer.Typer:
 
     @app.command("status")
     def status_cmd(
-        stage: Annotated[Optional[str], typer.Argument(help="Limit to this stage and what it needs.")] = None,
+        stage: Annotated[str | None, typer.Argument(help="Limit to this stage and what it needs.")] = None,
         config: ConfigOpt = None,
         out: OutOpt = None,
         set_: SetOpt = None,
@@ -167,7 +165,7 @@ def build_app(project: Project) -> typer.Typer:
 
     @app.command()
     def clean(
-        stage: Annotated[Optional[str], typer.Argument(help="Only this stage's outputs.")] = None,
+        stage: Annotated[str | None, typer.Argument(help="Only this stage's outputs.")] = None,
         config: ConfigOpt = None,
         out: OutOpt = None,
         set_: SetOpt = None,

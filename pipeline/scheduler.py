@@ -74,9 +74,7 @@ def committed(out: Path, stage: str, *, verify_hash: bool = True) -> dict[str, E
     return {k: e for k, e in manifest.entries().items() if manifest.shard_ok(e, verify_hash=verify_hash)}
 
 
-def upstream_view(
-    out: Path, stage: Stage, current: dict[str, set[str]], *, verify_hash: bool = True
-) -> Upstream:
+def upstream_view(out: Path, stage: Stage, current: dict[str, set[str]], *, verify_hash: bool = True) -> Upstream:
     """The committed shards of ``stage``'s inputs whose keys are current, by task id.
 
     ``current`` maps each upstream stage to the keys its tasks have under the present config (the scheduler
@@ -211,7 +209,9 @@ def parallel_backend(run: RunConfig, jobs: int) -> Iterator[None]:
             import ray
             from ray.util.joblib import register_ray
         except ImportError:
-            raise ConfigError("run.backend: 'ray' needs the ray package installed (pip install 'ray[default]')") from None
+            raise ConfigError(
+                "run.backend: 'ray' needs the ray package installed (pip install 'ray[default]')"
+            ) from None
         register_ray()
         if not ray.is_initialized():
             ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False)

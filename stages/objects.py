@@ -128,17 +128,13 @@ def discover(params: ObjectsParams) -> list[tuple[str, Path, float]]:
         matches = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
         meshes = [p for p in matches if p.is_file() and p.suffix.lower() in MESH_SUFFIXES]
         if not meshes:
-            raise ConfigError(
-                f"objects.paths[{i}]: {pattern!r} matches no mesh file ({', '.join(MESH_SUFFIXES)})"
-            )
+            raise ConfigError(f"objects.paths[{i}]: {pattern!r} matches no mesh file ({', '.join(MESH_SUFFIXES)})")
         for path in meshes:
             add(path.stem, path, params.density)
     if params.include:
         missing = sorted(set(params.include) - set(found))
         if missing:
-            raise ConfigError(
-                f"objects.include: no object named {missing[0]!r}; available: {', '.join(sorted(found))}"
-            )
+            raise ConfigError(f"objects.include: no object named {missing[0]!r}; available: {', '.join(sorted(found))}")
         found = {n: v for n, v in found.items() if n in params.include}
     if not found:
         raise ConfigError("objects: no objects selected (bundled is false and paths is empty)")

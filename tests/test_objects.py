@@ -33,7 +33,9 @@ def gen(*args, cwd=None):
 
 
 def write_obj(path: Path, vertices, faces) -> None:
-    lines = [f"v {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in vertices] + [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    lines = [f"v {float(x)!r} {float(y)!r} {float(z)!r}" for x, y, z in vertices] + [
+        f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces
+    ]
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -60,10 +62,18 @@ def broken_folder(tmp_path):
 def test_broken_files_are_named_and_the_good_ones_processed(broken_folder, tmp_path):
     out = tmp_path / "out"
     result = gen(
-        "run", "objects", "--out", out, "--jobs", 2,
-        "--set", "objects.bundled=false",
-        "--set", f"objects.paths=['{broken_folder}/*']",
-        "--set", f"run.cache_dir={tmp_path / 'cache'}",
+        "run",
+        "objects",
+        "--out",
+        out,
+        "--jobs",
+        2,
+        "--set",
+        "objects.bundled=false",
+        "--set",
+        f"objects.paths=['{broken_folder}/*']",
+        "--set",
+        f"run.cache_dir={tmp_path / 'cache'}",
         *[a for s in CHEAP for a in ("--set", s)],
     )
     assert result.returncode == 1, result.stdout + result.stderr
@@ -97,7 +107,9 @@ def test_config_typo_fails_fast_naming_the_key(tmp_path):
     cfg.write_text("objects:\n  pahts: ['*.obj']\n")
     result = gen("run", "--config", cfg, "--out", tmp_path / "o")
     assert result.returncode == 2
-    assert "objects.pahts: unknown key; valid keys: bundled, coacd, densities, density, include" in " ".join(result.stderr.split())
+    assert "objects.pahts: unknown key; valid keys: bundled, coacd, densities, density, include" in " ".join(
+        result.stderr.split()
+    )
     assert not (tmp_path / "o").exists()
 
 
@@ -121,7 +133,13 @@ def test_bundled_box_shard_matches_its_geometry(tmp_path):
     cfg = load_config(
         PROJECT.schema,
         None,
-        [f"run.out={tmp_path / 'o'}", f"run.cache_dir={tmp_path / 'c'}", "run.jobs=1", "objects.include=[box, l_bracket]", *CHEAP],
+        [
+            f"run.out={tmp_path / 'o'}",
+            f"run.cache_dir={tmp_path / 'c'}",
+            "run.jobs=1",
+            "objects.include=[box, l_bracket]",
+            *CHEAP,
+        ],
     )
     (report,) = run_pipeline(PROJECT, cfg, ["objects"])
     assert (report.ran, report.failed) == (2, 0)
@@ -131,7 +149,9 @@ def test_bundled_box_shard_matches_its_geometry(tmp_path):
     assert mesh.is_watertight
     assert box.mass == pytest.approx(density * 0.05 * 0.07 * 0.12, rel=1e-9)
     a, b, c = 0.05, 0.07, 0.12
-    np.testing.assert_allclose(np.diag(box.inertia), box.mass / 12 * np.array([b*b + c*c, a*a + c*c, a*a + b*b]), rtol=1e-9)
+    np.testing.assert_allclose(
+        np.diag(box.inertia), box.mass / 12 * np.array([b * b + c * c, a * a + c * c, a * a + b * b]), rtol=1e-9
+    )
     assert len(box.convex_parts) == 1
     assert box.stable_probabilities.sum() == pytest.approx(1.0)
     # the most probable pose rests on one of the two largest faces (0.07 x 0.12): the 0.05 side is vertical
