@@ -1,0 +1,448 @@
+"""Antipodal grasp candidates on a triangle mesh: pure geometry (numpy + trimesh rays), usable from a notebook.
+
+Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
+
+1. **Surface points.** ``num_surface_points`` points uniformly by area on the mesh: a face is drawn with
+   probability proportional to its area, then a uniform barycentric point in it (both from ``rng``; trimesh's own
+   sampler is not used so that every random number comes from the one generator, in a fixed order). Each point
+   ``p1`` has the inward normal ``n1 = -face normal`` (the direction a finger pushes).
+2. **Friction-cone rays.** ``rays_per_point`` directions ``d`` uniform (by solid angle) inside the cone of
+   half-angle ``atan(mu)`` about ``n1``.
+3. **Second contact.** Each ray starts ``surface_offset`` inside the object (``p1 + surface_offset d``) and the
+   first triangle it hits is where it leaves the material: ``p2``. That hit must face along the ray (an *exit*:
+   ``face normal . d > 0``); a miss or an entering face means the start was not inside (open or inconsistently
+   wound mesh, or ``p1`` within ``surface_offset`` of an edge) and the ray is rejected as ``no_exit``. The segment
+   ``p1 -> p2`` therefore lies inside the object, and for a thin-walled object (a mug) the pair pinches one wall.
+4. **Checks**, in this order; a ray is counted under the first it fails (:class:`RejectCounts`):
+
+   - ``outside_cone``: the line ``p1 -> p2`` must lie in both friction cones: ``angle(p2 - p1, n1) <= atan(mu)``
+     (true by construction up to round-off) and ``angle(p1 - p2, n2) <= atan(mu)`` with ``n2`` the inward normal
+     at ``p2``;
+   - ``width_too_small``: ``width = |p2 - p1| >= max(gripper.min_width, surface_offset)``;
+   - ``width_too_large``: ``width + width_margin <= gripper.max_width``. **Margin convention:** the gripper is
+     opened to ``width + width_margin`` before it approaches (width adaptation: no wider than needed, so the open
+     fingers fit between neighbours) and closes from there, so that opening must be reachable.
+
+5. **Orientations.** The TCP frame sits at the midpoint of ``p1, p2`` with ``x = (p2 - p1) / width`` (``p1`` is
+   the *left* pad's contact, on -x; ``p2`` the *right* pad's, on +x: :mod:`stages.grippers`). ``num_orientations``
+   approach axes ``z`` perpendicular to ``x`` are evenly spaced about ``x``, starting at a random phase (one per
+   ray, from ``rng``); ``y = z x x``, so ``[x y z]`` is a proper rotation.
+6. **Approach filter** on the world-frame approach axis ``z_w = R_object z`` (``object_pose`` places the object):
+   the approach angle is the angle between ``z_w`` and straight down ``(0, 0, -1)``, in ``[0, pi]``.
+
+   - ``"above"``: keep approach angle ``<= max_approach_angle`` (a cone about straight down; ``max_approach_angle
+     < pi/2``, so every kept approach points strictly downward);
+   - ``"hemisphere"``: keep ``z_w[2] < 0`` (the open upper hemisphere: any approach with a downward component,
+     side grasps up to but excluding horizontal; ``max_approach_angle`` is not used);
+   - ``"any"``: keep everything (collisions with the support are the pre-filter's business).
+
+Every kept candidate satisfies: both contacts on the surface, ``max(min_width, surface_offset) <= width <=
+max_width - width_margin``, the contact line inside both friction cones.
+
+Speed: one ray per candidate pair, cast with ``mesh.ray.intersects_first``; everything else is vectorised numpy.
+With ``embreex`` installed ``mesh.ray`` is trimesh's Embree intersector (~4M rays/s); without it trimesh falls back
+to a pure-Python intersector about 1000x slower and this module warns.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+
+from stages.grippers import GripperSpec
+
+__all__ = [
+    "APPROACH_MODES",
+    "AntipodalParams",
+    "RejectCounts",
+    "AntipodalCandidates",
+    "sample_antipodal",
+    "uses_embree",
+]
+
+APPROACH_MODES = ("above", "hemisphere", "any")
+"""Accepted values of :attr:`AntipodalParams.approach`."""
+
+# ---------------------------------------------------------------------------------------------------------------
+# Argument checks (programmer errors -> ValueError naming the argument)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _check_positive_int(name: str, value: object) -> None:
+    if not _is_int(value) or value < 1:
+        raise ValueError(f"{name}: must be a positive integer, got {value!r}")
+
+
+def _check_number(name: str, value: object, *, low: float | None = None, high: float | None = None,
+                  low_open: bool = False, high_open: bool = False) -> None:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}: must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    too_low = low is not None and (value <= low if low_open else value < low)
+    too_high = high is not None and (value >= high if high_open else value > high)
+    if too_low or too_high:
+        left, right = ("(" if low_open else "["), (")" if high_open else "]")
+        low_text = "-inf" if low is None else f"{low:g}"
+        high_text = "inf" if high is None else f"{high:g}"
+        raise ValueError(f"{name}: must be in {left}{low_text}, {high_text}{right}, got {value!r}")
+
+
+def _check_mesh(mesh: object) -> None:
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise ValueError(f"mesh: must be a trimesh.Trimesh, got {type(mesh).__name__}")
+    if len(mesh.faces) == 0 or not float(mesh.area) > 0:
+        raise ValueError("mesh: has no faces of positive area")
+
+
+def _check_rng(rng: object) -> None:
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: must be a numpy.random.Generator, got {type(rng).__name__}")
+
+
+def _check_object_pose(pose: object) -> np.ndarray:
+    T = np.asarray(pose, dtype=float)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ValueError(f"object_pose: must be a finite 4x4 transform, got shape {T.shape}")
+    R = T[:3, :3]
+    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) <= 0 or np.any(T[3] != (0.0, 0.0, 0.0, 1.0)):
+        raise ValueError("object_pose: must be a rigid transform (proper rotation, last row 0 0 0 1)")
+    return T
+
+
+def uses_embree(mesh: trimesh.Trimesh) -> bool:
+    """Whether ``mesh.ray`` is trimesh's Embree intersector (fast) rather than the pure-Python fallback."""
+    return type(mesh.ray).__module__.endswith("ray_pyembree")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Data
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AntipodalParams:
+    """Settings of the antipodal sampler (the opening range comes from the :class:`GripperSpec`)."""
+
+    num_surface_points: int = 256
+    """Surface points ``p1`` drawn per call (uniform by area)."""
+    rays_per_point: int = 4
+    """Rays cast from each surface point, uniform by solid angle inside its friction cone."""
+    friction: float = 0.5
+    """Coulomb friction coefficient mu (dimensionless, > 0); the friction cone's half-angle is ``atan(mu)``."""
+    num_orientations: int = 8
+    """Approach axes per contact pair, evenly spaced about the contact line (random phase per pair)."""
+    approach: str = "hemisphere"
+    """Approach filter in the world frame: ``"above"`` (within ``max_approach_angle`` of straight down),
+    ``"hemisphere"`` (any downward component: world z of the approach axis < 0) or ``"any"`` (no filter)."""
+    max_approach_angle: float = math.pi / 4
+    """Largest angle (rad, in (0, pi/2)) between the approach axis and straight down for ``approach="above"``."""
+    width_margin: float = 0.01
+    """Opening margin (m, >= 0): the gripper opens to ``width + width_margin`` before approaching, so a pair is kept
+    only if ``width + width_margin <= gripper.max_width``."""
+    surface_offset: float = 1e-5
+    """How far (m, > 0) inside the surface each ray starts, so that it does not hit its own face again. Far above
+    Embree's float32 resolution at object scale (~1e-8 m for a 0.1 m object), far below any wall thickness. Widths
+    below it are rejected as too small."""
+
+    def __post_init__(self) -> None:
+        _check_positive_int("num_surface_points", self.num_surface_points)
+        _check_positive_int("rays_per_point", self.rays_per_point)
+        _check_number("friction", self.friction, low=0.0, low_open=True)
+        _check_positive_int("num_orientations", self.num_orientations)
+        if self.approach not in APPROACH_MODES:
+            raise ValueError(f"approach: must be one of {', '.join(APPROACH_MODES)}, got {self.approach!r}")
+        _check_number("max_approach_angle", self.max_approach_angle, low=0.0, high=math.pi / 2, low_open=True,
+                      high_open=True)
+        _check_number("width_margin", self.width_margin, low=0.0)
+        _check_number("surface_offset", self.surface_offset, low=0.0, low_open=True)
+
+    @property
+    def cone_half_angle(self) -> float:
+        """Half-angle (rad) of the friction cone: ``atan(friction)``."""
+        return math.atan(self.friction)
+
+
+@dataclass(frozen=True)
+class RejectCounts:
+    """Why sampled rays and oriented candidates were dropped, for one call of :func:`sample_antipodal`.
+
+    Every ray is counted exactly once: ``rays = no_exit + outside_cone + width_too_small + width_too_large +
+    pairs``; every accepted pair gives ``num_orientations`` oriented candidates: ``pairs * num_orientations =
+    approach + kept``.
+    """
+
+    rays: int
+    """Rays cast (``num_surface_points * rays_per_point``)."""
+    no_exit: int
+    """Rays that hit nothing, or first hit a face facing against the ray (the start was not inside the object)."""
+    outside_cone: int
+    """Rays whose contact line ``p1 -> p2`` is outside the friction cone at the second (or, by round-off, the
+    first) contact."""
+    width_too_small: int
+    """Rays with ``width < max(gripper.min_width, surface_offset)``."""
+    width_too_large: int
+    """Rays with ``width + width_margin > gripper.max_width``."""
+    pairs: int
+    """Rays that passed every check: accepted contact pairs."""
+    approach: int
+    """Oriented candidates (pairs x orientations) dropped by the approach filter."""
+    kept: int
+    """Oriented candidates kept: the length of the :class:`AntipodalCandidates`."""
+
+    def as_dict(self) -> dict[str, int]:
+        """The counts by name (plain ints, for logs and shard metadata)."""
+        return {k: int(getattr(self, k)) for k in self.__dataclass_fields__}
+
+
+def _frozen(array: np.ndarray) -> np.ndarray:
+    array = np.ascontiguousarray(array)
+    array.setflags(write=False)
+    return array
+
+
+@dataclass(frozen=True, eq=False)
+class AntipodalCandidates:
+    """``n`` antipodal grasp candidates on one object. Arrays are read-only; row ``i`` of each is candidate ``i``.
+
+    Candidates come in runs of at most ``num_orientations`` that share a contact pair (same ``ray_index``), in
+    increasing ``ray_index`` order.
+    """
+
+    p1: np.ndarray
+    """``(n, 3) float64`` first contact (m, object frame): the surface point the ray started from; the left pad's
+    contact (TCP -x side)."""
+    p2: np.ndarray
+    """``(n, 3) float64`` second contact (m, object frame): where the ray leaves the object; the right pad's
+    contact (TCP +x side)."""
+    n1: np.ndarray
+    """``(n, 3) float64`` unit inward normal at ``p1`` (object frame): the direction that finger pushes."""
+    n2: np.ndarray
+    """``(n, 3) float64`` unit inward normal at ``p2`` (object frame)."""
+    face1: np.ndarray
+    """``(n,) int64`` mesh face of ``p1``."""
+    face2: np.ndarray
+    """``(n,) int64`` mesh face of ``p2``."""
+    width: np.ndarray
+    """``(n,) float64`` pad separation at contact ``|p2 - p1|`` (m)."""
+    pose_object: np.ndarray
+    """``(n, 4, 4) float64`` TCP pose in the object frame (origin at the midpoint, x along ``p2 - p1``, z the
+    approach axis)."""
+    pose_world: np.ndarray
+    """``(n, 4, 4) float64`` TCP pose in the world frame: ``object_pose @ pose_object``."""
+    approach_angle: np.ndarray
+    """``(n,) float64`` angle (rad, [0, pi]) between the world-frame approach axis and straight down."""
+    ray_index: np.ndarray
+    """``(n,) int64`` which ray (``point * rays_per_point + k``) gave the contact pair."""
+    object_pose: np.ndarray
+    """``(4, 4) float64`` the object's pose in the world used for ``pose_world`` and the approach filter."""
+    rejected: RejectCounts = field(repr=False)
+    """Bookkeeping of what was dropped and why."""
+
+    def __len__(self) -> int:
+        return int(self.width.shape[0])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Sampling
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(a, b)`` with ``(a, b, axis)`` right-handed orthonormal, for unit ``axis (m, 3)``.
+
+    ``a`` is ``axis x e`` with ``e`` the coordinate axis least aligned with ``axis`` (well conditioned: the cross
+    product has norm >= sqrt(2/3)); deterministic, so results depend only on the inputs.
+    """
+    e = np.zeros_like(axis)
+    e[np.arange(len(axis)), np.argmin(np.abs(axis), axis=1)] = 1.0
+    a = _unit(np.cross(axis, e))
+    b = np.cross(axis, a)
+    return a, b
+
+
+def _sample_surface(mesh: trimesh.Trimesh, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` points uniform by area on ``mesh``: (points (count, 3), face indices (count,) int64)."""
+    cdf = np.cumsum(mesh.area_faces)
+    # searchsorted on the unnormalised CDF avoids a division whose round-off could make the last bin unreachable.
+    faces = np.searchsorted(cdf, rng.random(count) * cdf[-1], side="right")
+    faces = np.minimum(faces, len(cdf) - 1).astype(np.int64)
+    uv = rng.random((count, 2))
+    # Fold the unit square onto the triangle u + v <= 1 (uniform on the triangle).
+    fold = uv.sum(axis=1) > 1.0
+    uv[fold] = 1.0 - uv[fold]
+    tri = mesh.triangles[faces]
+    points = tri[:, 0] + uv[:, :1] * (tri[:, 1] - tri[:, 0]) + uv[:, 1:] * (tri[:, 2] - tri[:, 0])
+    return points, faces
+
+
+def _cone_directions(axis: np.ndarray, per_axis: int, cos_max: float, rng: np.random.Generator) -> np.ndarray:
+    """``per_axis`` unit directions per unit ``axis (m, 3)``, uniform by solid angle within ``acos(cos_max)`` of
+    it: ``(m, per_axis, 3)``. Uniform ``cos(theta)`` in ``[cos_max, 1]`` is uniform on the spherical cap."""
+    draws = rng.random((len(axis), per_axis, 2))
+    cos_t = 1.0 - draws[..., 0] * (1.0 - cos_max)
+    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
+    phi = 2.0 * np.pi * draws[..., 1]
+    t1, t2 = _perpendicular_basis(axis)
+    lateral = np.cos(phi)[..., None] * t1[:, None, :] + np.sin(phi)[..., None] * t2[:, None, :]
+    return cos_t[..., None] * axis[:, None, :] + sin_t[..., None] * lateral
+
+
+def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: AntipodalParams,
+                     rng: np.random.Generator, *, object_pose=None) -> AntipodalCandidates:
+    """Antipodal grasp candidates on ``mesh`` for ``gripper`` (see the module docstring for the algorithm).
+
+    Parameters
+    ----------
+    mesh
+        The object's surface in its OBJECT frame (m), watertight with outward normals (as
+        :func:`stages.mesh_prep.repair_mesh` leaves it). Its ray intersector is cached on the mesh, so reuse one
+        mesh object across calls.
+    gripper
+        Gives the opening range ``[min_width, max_width]``.
+    params
+        Sampler settings.
+    rng
+        The only source of randomness; the same seed gives bitwise identical arrays. Each call draws, in order:
+        face choice (``num_surface_points``), barycentric coordinates (``2 num_surface_points``), cone directions
+        (``2 rays``) and orientation phases (``rays``), whatever is accepted.
+    object_pose
+        ``(4, 4)`` pose of the object frame in the world (default identity): gives ``pose_world`` and the frame of
+        the approach filter.
+
+    Returns
+    -------
+    AntipodalCandidates
+        The kept candidates (possibly none) and :class:`RejectCounts`.
+
+    Raises
+    ------
+    ValueError
+        A wrong argument type/shape, or ``params.width_margin`` leaving no usable opening for ``gripper``.
+    """
+    _check_mesh(mesh)
+    if not isinstance(gripper, GripperSpec):
+        raise ValueError(f"gripper: must be a GripperSpec, got {type(gripper).__name__}")
+    if not isinstance(params, AntipodalParams):
+        raise ValueError(f"params: must be an AntipodalParams, got {type(params).__name__}")
+    _check_rng(rng)
+    T_world = np.eye(4) if object_pose is None else _check_object_pose(object_pose)
+    min_width = max(gripper.min_width, params.surface_offset)
+    max_width = gripper.max_width - params.width_margin
+    if max_width < min_width:
+        raise ValueError(f"params.width_margin: {params.width_margin} m leaves no opening for gripper "
+                         f"{gripper.name!r} (max_width {gripper.max_width} m)")
+    if not uses_embree(mesh):
+        warnings.warn("trimesh has no Embree ray intersector (install embreex): antipodal sampling will be ~1000x "
+                      "slower", RuntimeWarning, stacklevel=2)
+
+    n_rays_per = params.rays_per_point
+    n_orient = params.num_orientations
+    cos_max = 1.0 / math.sqrt(1.0 + params.friction ** 2)  # cos(atan(mu))
+
+    # --- random draws, all up front in a fixed order so the stream does not depend on the geometry -------------
+    p1, face1 = _sample_surface(mesh, params.num_surface_points, rng)
+    face_normals = mesh.face_normals
+    n1 = -face_normals[face1]
+    d = _cone_directions(n1, n_rays_per, cos_max, rng).reshape(-1, 3)
+    phase = rng.random(len(d)) * (2.0 * np.pi / n_orient)
+    ray_point = np.repeat(np.arange(len(p1)), n_rays_per)
+    p1, face1, n1 = p1[ray_point], face1[ray_point], n1[ray_point]
+    n_rays = len(d)
+
+    # --- second contact: first face hit from just inside -------------------------------------------------------
+    origins = p1 + params.surface_offset * d
+    hit = np.asarray(mesh.ray.intersects_first(origins, d), dtype=np.int64)
+    exit_ok = hit >= 0
+    hit_safe = np.where(exit_ok, hit, 0)
+    fn2 = face_normals[hit_safe]
+    denom = np.einsum("ij,ij->i", d, fn2)
+    exit_ok &= denom > 0.0  # an exit face faces along the ray
+    # Exact float64 hit point on the hit face's plane (Embree works in float32 and returns only the face).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("ij,ij->i", mesh.triangles[hit_safe, 0] - origins, fn2) / denom
+    exit_ok &= np.isfinite(t)
+    t = np.where(exit_ok, np.maximum(t, 0.0), 0.0)
+    p2 = origins + t[:, None] * d
+    delta = p2 - p1
+    width = np.linalg.norm(delta, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_axis = delta / width[:, None]
+    n2 = -fn2
+
+    # --- checks, each ray counted under the first it fails ------------------------------------------------------
+    in_cone = (np.einsum("ij,ij->i", x_axis, n1) >= cos_max) & (np.einsum("ij,ij->i", -x_axis, n2) >= cos_max)
+    fail_cone = exit_ok & ~in_cone
+    alive = exit_ok & in_cone
+    fail_small = alive & (width < min_width)
+    alive &= ~fail_small
+    fail_large = alive & (width > max_width)
+    alive &= ~fail_large
+    keep_rays = np.flatnonzero(alive)
+
+    # --- orientations about the contact line ---------------------------------------------------------------------
+    # With (a, b, x) right-handed orthonormal, z = cos(t) a + sin(t) b gives y = z x x = sin(t) a - cos(t) b: no
+    # cross products; the approach filter needs only the world z components of a and b.
+    x = x_axis[keep_rays]
+    a, b = _perpendicular_basis(x)
+    mid = (p1[keep_rays] + p2[keep_rays]) / 2.0
+    theta = phase[keep_rays, None] + (2.0 * np.pi / n_orient) * np.arange(n_orient)  # (k, K)
+    cos_t, sin_t = np.cos(theta), np.sin(theta)
+    # World z component of the approach axis (row 2 of R_world @ z), for the filter before building any pose.
+    z_world_z = cos_t * (a @ T_world[2, :3])[:, None] + sin_t * (b @ T_world[2, :3])[:, None]  # (k, K)
+    approach_angle = np.arccos(np.clip(-z_world_z, -1.0, 1.0))
+    if params.approach == "above":
+        keep = approach_angle <= params.max_approach_angle
+    elif params.approach == "hemisphere":
+        keep = z_world_z < 0.0
+    else:
+        keep = np.ones(z_world_z.shape, dtype=bool)
+    pair, orient = np.nonzero(keep)  # row-major: by ray, then by orientation
+    cos_k, sin_k = cos_t[pair, orient, None], sin_t[pair, orient, None]
+    a_k, b_k = a[pair], b[pair]
+    pose_obj = np.zeros((len(pair), 4, 4))
+    pose_obj[:, :3, 0] = x[pair]
+    pose_obj[:, :3, 1] = sin_k * a_k - cos_k * b_k
+    pose_obj[:, :3, 2] = cos_k * a_k + sin_k * b_k
+    pose_obj[:, :3, 3] = mid[pair]
+    pose_obj[:, 3, 3] = 1.0
+    pose_world = np.matmul(T_world, pose_obj)
+    approach_angle = approach_angle[pair, orient]
+    rows = keep_rays[pair]
+    counts = RejectCounts(
+        rays=n_rays,
+        no_exit=int(np.count_nonzero(~exit_ok)),
+        outside_cone=int(np.count_nonzero(fail_cone)),
+        width_too_small=int(np.count_nonzero(fail_small)),
+        width_too_large=int(np.count_nonzero(fail_large)),
+        pairs=int(len(keep_rays)),
+        approach=int(keep.size - len(pair)),
+        kept=int(len(rows)),
+    )
+    return AntipodalCandidates(
+        p1=_frozen(p1[rows]),
+        p2=_frozen(p2[rows]),
+        n1=_frozen(n1[rows]),
+        n2=_frozen(n2[rows]),
+        face1=_frozen(face1[rows]),
+        face2=_frozen(hit[rows]),
+        width=_frozen(width[rows]),
+        pose_object=_frozen(pose_obj),
+        pose_world=_frozen(pose_world),
+        approach_angle=_frozen(approach_angle),
+        ray_index=_frozen(rows.astype(np.int64)),
+        object_pose=_frozen(T_world.copy()),
+        rejected=counts,
+    )

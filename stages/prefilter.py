@@ -1,0 +1,323 @@
+"""Static collision pre-filter for grasp candidates: MuJoCo collision detection on the real gripper geoms, no dynamics.
+
+A candidate is a TCP pose in the world and a contact width. The gripper is opened to ``width + width_margin``
+(clipped to the gripper's range: the rollout opens it the same way), then placed at ``num_approach_samples`` poses
+along its approach line, from the pre-grasp pose ``approach_distance`` back along the approach axis (-z of the TCP
+frame) to the grasp pose itself. At each pose only ``mj_kinematics`` + ``mj_collision`` run (no ``mj_step``), and
+every contact between a gripper geom and another geom with signed distance ``< margin`` is a collision.
+
+Result codes (the rollout outcome codes of DESIGN section 5.4 for the same events):
+
+* ``-1`` (:data:`FREE`): no collision at any checked pose;
+* ``0`` (:data:`GROUND`): the gripper hits the ground or a support (any geom that is not part of an object);
+* ``1`` (:data:`TARGET`): the gripper hits the target object. This includes the final grasp pose: the *open*
+  fingers must not touch the target there (the grasp closes from ``width + width_margin``), and along the approach
+  any contact with the target is a collision;
+* ``2`` (:data:`CLUTTER`): the gripper hits another object.
+
+Which reason is reported: the poses are checked in the order the gripper moves (pre-grasp first, grasp pose last)
+and the first pose with a collision decides, as it would in a rollout; when that pose collides with several kinds of
+geom, the smallest code wins (ground before target before clutter). The approach line is sampled, not swept: an
+obstacle thinner than the spacing ``approach_distance / (num_approach_samples - 1)`` can slip between two samples.
+
+Scene conventions (how geoms are classified): a geom belongs to the body tree rooted at a child of the world body.
+Roots named ``obj/...`` (``obj/<index>_<name>``) are objects; the target is named by its root body; every other
+non-gripper geom (a plane named ``ground``, ``support/...`` geoms, anything else static) is ground/support. Gripper
+geoms are found by name (:func:`stages.grippers.gripper_geom_ids`).
+
+Speed (why the checker owns a private compiled model): the world is compiled once with the gripper attached, one
+:class:`mujoco.MjData` is reused, and the geoms' contact bitmasks are rewritten in that private model so that only
+gripper-vs-other pairs are ever tested: objects resting on the table and on each other would otherwise cost most of
+the collision time. A non-gripper geom keeps colliding with the gripper exactly when its original
+``contype``/``conaffinity`` let it collide with the gripper geoms (visual-only geoms stay ignored). ``<exclude>``
+elements are honoured by MuJoCo as in a rollout; contacts of explicit ``<pair>`` elements that do not involve the
+gripper are ignored. Every non-gripper joint stays at its ``qpos0``: the scene is checked as the spec poses it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from stages.grippers import GripperSpec, attach_gripper, gripper_geom_ids
+
+__all__ = [
+    "FREE",
+    "GROUND",
+    "TARGET",
+    "CLUTTER",
+    "CODE_NAMES",
+    "OBJECT_PREFIX",
+    "PrefilterParams",
+    "CollisionChecker",
+    "approach_offsets",
+]
+
+FREE = -1
+"""No collision."""
+GROUND = 0
+"""Collision with the ground or a support (rollout outcome ``collision_with_ground``)."""
+TARGET = 1
+"""Collision with the target object (rollout outcome ``collision_with_target``)."""
+CLUTTER = 2
+"""Collision with another object (rollout outcome ``collision_with_clutter``)."""
+CODE_NAMES = {FREE: "free", GROUND: "collision_with_ground", TARGET: "collision_with_target",
+              CLUTTER: "collision_with_clutter"}
+"""Human-readable name of each code."""
+OBJECT_PREFIX = "obj/"
+"""Root bodies whose names start with this are objects (targets or clutter); everything else is support."""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Argument checks (programmer errors -> ValueError naming the argument)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _check_number(name: str, value: object, *, low: float | None = None, low_open: bool = False) -> None:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}: must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    if low is not None and (value <= low if low_open else value < low):
+        raise ValueError(f"{name}: must be {'>' if low_open else '>='} {low:g}, got {value!r}")
+
+
+def _check_positive_int(name: str, value: object) -> None:
+    if not isinstance(value, (int, np.integer)) or isinstance(value, (bool, np.bool_)) or value < 1:
+        raise ValueError(f"{name}: must be a positive integer, got {value!r}")
+
+
+def _check_poses(poses: object) -> np.ndarray:
+    T = np.asarray(poses, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ValueError(f"T_tcp_world: must have shape (n, 4, 4), got {T.shape}")
+    if not np.isfinite(T).all():
+        raise ValueError("T_tcp_world: must be finite")
+    R = T[:, :3, :3]
+    ortho = np.abs(np.matmul(R, np.swapaxes(R, 1, 2)) - np.eye(3)).max(initial=0.0)
+    if ortho > 1e-6 or (len(T) and np.linalg.det(R).min() <= 0):
+        raise ValueError("T_tcp_world: every rotation block must be a proper rotation (orthonormal, det +1)")
+    return T
+
+
+def _check_widths(widths: object, n: int) -> np.ndarray:
+    w = np.asarray(widths, dtype=float)
+    if w.shape != (n,):
+        raise ValueError(f"widths: must have shape ({n},) like T_tcp_world, got {w.shape}")
+    if not np.isfinite(w).all() or (n and w.min() < 0):
+        raise ValueError("widths: must be finite and >= 0 (m)")
+    return w
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Data
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PrefilterParams:
+    """Settings of the static collision pre-filter."""
+
+    approach_distance: float = 0.1
+    """Distance (m, >= 0) of the pre-grasp pose behind the grasp pose, along the TCP's -z (the gripper starts
+    there and moves along +z to the grasp)."""
+    num_approach_samples: int = 11
+    """Poses checked along the approach line, evenly spaced from the pre-grasp pose to the grasp pose (both
+    included); 1 checks the grasp pose only. Default: 1 cm spacing over 0.1 m."""
+    margin: float = 0.0
+    """Clearance (m): a gripper contact with signed distance below this is a collision. 0 flags any penetration;
+    > 0 demands that much clearance (conservative); < 0 tolerates penetration up to ``-margin``."""
+    width_margin: float = 0.01
+    """The gripper is opened to ``width + width_margin`` (m, >= 0; clipped to the gripper's range). Use the same
+    value as :attr:`stages.antipodal.AntipodalParams.width_margin` and as the rollout."""
+
+    def __post_init__(self) -> None:
+        _check_number("approach_distance", self.approach_distance, low=0.0)
+        _check_positive_int("num_approach_samples", self.num_approach_samples)
+        _check_number("margin", self.margin)
+        _check_number("width_margin", self.width_margin, low=0.0)
+
+
+def approach_offsets(params: PrefilterParams) -> np.ndarray:
+    """Distances (m) behind the grasp pose, along -z, of the checked poses in motion order: ``(num_approach_samples,)``
+    from ``approach_distance`` down to 0 (just ``[0]`` for one sample)."""
+    if params.num_approach_samples == 1:
+        return np.zeros(1)
+    return np.linspace(params.approach_distance, 0.0, params.num_approach_samples)
+
+
+def _quats(R: np.ndarray) -> np.ndarray:
+    """MuJoCo quaternions (w, x, y, z) of rotation matrices ``(n, 3, 3)``."""
+    out = np.empty((len(R), 4))
+    for i in range(len(R)):
+        mujoco.mju_mat2Quat(out[i], np.ascontiguousarray(R[i]).reshape(-1))
+    return out
+
+
+class CollisionChecker:
+    """Static gripper-vs-scene collision queries on one compiled world (see the module docstring).
+
+    Parameters
+    ----------
+    world
+        The scene as an :class:`mujoco.MjSpec`: support geoms, objects as bodies ``obj/<index>_<name>`` (mesh geoms)
+        at their poses (free joints at ``qpos0`` = their spec pose). It is copied, never modified. If it already
+        holds a gripper named ``name_prefix`` (a body ``<name_prefix>base``), that one is used (``gripper`` must
+        describe it); otherwise ``gripper`` is attached with :func:`stages.grippers.attach_gripper`. Every geom whose
+        name starts with ``name_prefix`` is the gripper's.
+    gripper
+        The gripper whose geoms are checked; gives the opening range.
+    params
+        Approach line, margins.
+    name_prefix
+        Name prefix of the gripper's elements.
+    """
+
+    def __init__(self, world: mujoco.MjSpec, gripper: GripperSpec, params: PrefilterParams | None = None, *,
+                 name_prefix: str = "gripper/") -> None:
+        if not isinstance(world, mujoco.MjSpec):
+            raise ValueError(f"world: must be a mujoco.MjSpec, got {type(world).__name__}")
+        if not isinstance(gripper, GripperSpec):
+            raise ValueError(f"gripper: must be a GripperSpec, got {type(gripper).__name__}")
+        params = PrefilterParams() if params is None else params
+        if not isinstance(params, PrefilterParams):
+            raise ValueError(f"params: must be a PrefilterParams, got {type(params).__name__}")
+        self.gripper = gripper
+        self.params = params
+        self.prefix = name_prefix
+        spec = world.copy()
+        if spec.body(f"{name_prefix}base") is None:
+            attach_gripper(spec, gripper, name_prefix=name_prefix)
+        self._restrict_contacts(spec, name_prefix, params.margin)
+        self.model = model = spec.compile()
+        self.data = mujoco.MjData(model)
+        self._offsets = approach_offsets(params)
+
+        def joint_adr(name: str) -> int:
+            jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if jid < 0:
+                raise ValueError(f"world: no joint {name!r} (gripper attached with another name_prefix?)")
+            return int(model.jnt_qposadr[jid])
+
+        self._free_adr = joint_adr(f"{name_prefix}free")
+        self._jaw_adr = (joint_adr(f"{name_prefix}left_slide"), joint_adr(f"{name_prefix}right_slide"))
+
+        # Geom classes: -1 gripper (never reported), 0 support, 2 object; the target's geoms become 1 per call.
+        try:
+            gripper_geom_ids(model, prefix=name_prefix)  # the pads must be there
+        except KeyError as exc:
+            raise ValueError(f"world: {exc.args[0]}") from None
+        # Every geom named with the prefix is the gripper's (the same rule as _restrict_contacts).
+        is_gripper = np.array([(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(name_prefix)
+                               for g in range(model.ngeom)], dtype=bool)
+        self._is_gripper = is_gripper
+        self._geom_root = model.body_rootid[model.geom_bodyid].astype(np.int64)
+        root_names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(b)) or "" for b in self._geom_root]
+        self._geom_code = np.where([n.startswith(OBJECT_PREFIX) for n in root_names], CLUTTER, GROUND).astype(np.int8)
+        self._geom_code[is_gripper] = FREE
+        self._body_roots = {mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b): int(model.body_rootid[b])
+                            for b in range(1, model.nbody)}
+
+    @staticmethod
+    def _restrict_contacts(spec: mujoco.MjSpec, prefix: str, margin: float) -> None:
+        """Rewrite contact masks and margins in the (private copy of the) spec, before compiling, so that MuJoCo's
+        compiled body-level bounds (broadphase masks and margins) agree with the geoms'.
+
+        Only gripper-vs-other pairs: gripper geoms get contype 2 / conaffinity 1; another geom keeps colliding with
+        the gripper iff its original masks allowed it with some gripper geom, as contype 1 / conaffinity 0, which
+        collides with conaffinity 1 but with no other non-gripper geom (1 & 0 == 0 both ways). MuJoCo reports a pair
+        when its distance is below the larger of the two geom margins: only the gripper geoms get one, so exactly the
+        contacts closer than ``max(margin, 0)`` are generated (and then filtered by ``dist < margin``).
+        """
+        geoms = list(spec.geoms)
+        is_gripper = [(g.name or "").startswith(prefix) for g in geoms]
+        masks = [(int(g.contype), int(g.conaffinity)) for g, grip in zip(geoms, is_gripper) if grip]
+        for geom, grip in zip(geoms, is_gripper):
+            if grip:
+                # A gripper geom that collides with nothing (a visual mesh) stays that way.
+                active = bool(geom.contype or geom.conaffinity)
+                geom.contype, geom.conaffinity = (2, 1) if active else (0, 0)
+                geom.margin = max(margin, 0.0)
+            else:
+                ct, ca = int(geom.contype), int(geom.conaffinity)
+                collides = any((ct & g_ca) or (g_ct & ca) for g_ct, g_ca in masks)
+                geom.contype, geom.conaffinity = (1 if collides else 0), 0
+                geom.margin = 0.0
+            geom.gap = 0.0
+
+    # -----------------------------------------------------------------------------------------------------------
+
+    def _target_root(self, name: str) -> int:
+        if not isinstance(name, str) or name not in self._body_roots:
+            raise ValueError(f"target_body_name: no body named {name!r} in the world")
+        if name.startswith(self.prefix):
+            raise ValueError(f"target_body_name: {name!r} is part of the gripper")
+        return self._body_roots[name]
+
+    def opening(self, widths) -> np.ndarray:
+        """Jaw opening (m) used for contact widths ``widths (n,)``: ``width + width_margin`` clipped to the range."""
+        return np.clip(np.asarray(widths, dtype=float) + self.params.width_margin, self.gripper.min_width,
+                       self.gripper.max_width)
+
+    def check(self, T_tcp_world, widths, target_body_name: str, *, return_steps: bool = False):
+        """Collision code of each candidate (see the module docstring).
+
+        Parameters
+        ----------
+        T_tcp_world
+            ``(n, 4, 4) float`` grasp (TCP) poses in the world frame.
+        widths
+            ``(n,) float`` contact widths (m); the gripper is opened to ``width + width_margin``.
+        target_body_name
+            Name of the target object's body (e.g. ``"obj/0_mug"``); contacts with any body in its tree are code 1.
+        return_steps
+            Also return ``(n,) int64``: the index of the first colliding pose along the approach (0 = pre-grasp,
+            ``num_approach_samples - 1`` = grasp pose), -1 when free.
+
+        Returns
+        -------
+        codes : (n,) int8
+            -1 free, 0 ground/support, 1 target, 2 clutter.
+        """
+        T = _check_poses(T_tcp_world)
+        n = len(T)
+        openings = self.opening(_check_widths(widths, n))
+        target_root = self._target_root(target_body_name)
+        geom_code = self._geom_code.copy()
+        geom_code[(self._geom_root == target_root) & ~self._is_gripper] = TARGET
+
+        model, data = self.model, self.data
+        quats = _quats(T[:, :3, :3])
+        # positions (n, S, 3): back along -z by each offset, in motion order.
+        positions = T[:, None, :3, 3] - self._offsets[None, :, None] * T[:, None, :3, 2]
+        codes = np.full(n, FREE, dtype=np.int8)
+        steps = np.full(n, -1, dtype=np.int64)
+        qpos = data.qpos
+        a = self._free_adr
+        left, right = self._jaw_adr
+        is_gripper = self._is_gripper
+        margin = self.params.margin
+        for i in range(n):
+            qpos[left] = qpos[right] = openings[i] / 2.0  # jaw joint = half the pad separation
+            qpos[a + 3:a + 7] = quats[i]
+            for k in range(len(self._offsets)):
+                qpos[a:a + 3] = positions[i, k]
+                mujoco.mj_kinematics(model, data)
+                mujoco.mj_collision(model, data)
+                if data.ncon == 0:
+                    continue
+                contact = data.contact
+                geom = contact.geom
+                grip0, grip1 = is_gripper[geom[:, 0]], is_gripper[geom[:, 1]]
+                # Exactly one gripper geom: explicit <pair> elements of the scene can still add object pairs.
+                hit = (contact.dist < margin) & (grip0 ^ grip1)
+                if not hit.any():
+                    continue
+                other = np.where(grip0[hit], geom[hit, 1], geom[hit, 0])
+                codes[i] = geom_code[other].min()
+                steps[i] = k
+                break
+        return (codes, steps) if return_steps else codes

@@ -1,0 +1,318 @@
+"""Tests of stages/antipodal.py: the antipodal sampler's geometry, filters, frames, bookkeeping and determinism."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from stages import antipodal as A
+from stages.grippers import get_gripper
+from stages.mesh_prep import load_mesh
+
+BOX_EXTENTS = (0.05, 0.07, 0.12)
+SPHERE_RADIUS = 0.03
+ASSETS = Path(__file__).resolve().parent.parent / "assets" / "objects"
+GRIPPER = get_gripper("robotiq_2f85")
+ARRAY_FIELDS = [f.name for f in dataclasses.fields(A.AntipodalCandidates) if f.name != "rejected"]
+
+
+def _box() -> trimesh.Trimesh:
+    return trimesh.creation.box(BOX_EXTENTS)
+
+
+def _sphere() -> trimesh.Trimesh:
+    return trimesh.creation.icosphere(subdivisions=3, radius=SPHERE_RADIUS)
+
+
+def _sample(mesh, params=None, seed=0, gripper=GRIPPER, **kwargs) -> A.AntipodalCandidates:
+    return A.sample_antipodal(mesh, gripper, params or A.AntipodalParams(), np.random.default_rng(seed), **kwargs)
+
+
+def _random_pose(seed: int) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=seed).as_matrix()
+    T[:3, 3] = np.random.default_rng(seed).uniform(-0.5, 0.5, 3)
+    return T
+
+
+def _cone_angles(c: A.AntipodalCandidates) -> tuple[np.ndarray, np.ndarray]:
+    u = (c.p2 - c.p1) / np.linalg.norm(c.p2 - c.p1, axis=1, keepdims=True)
+    a1 = np.arccos(np.clip(np.einsum("ij,ij->i", u, c.n1), -1, 1))
+    a2 = np.arccos(np.clip(np.einsum("ij,ij->i", -u, c.n2), -1, 1))
+    return a1, a2
+
+
+def _off_face(mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray) -> float:
+    """Largest distance (m) of ``points`` from their triangles ``faces``: off-plane distance, plus how far outside
+    the triangle in barycentric terms (scaled by the triangle's size). ``trimesh.proximity.closest_point`` is only
+    accurate to ~1e-6 m, too coarse for this."""
+    tri = mesh.triangles[faces]
+    plane = np.abs(np.einsum("ij,ij->i", points - tri[:, 0], mesh.face_normals[faces]))
+    bary = trimesh.triangles.points_to_barycentric(tri, points)
+    size = np.linalg.norm(tri[:, 1] - tri[:, 0], axis=1)
+    outside = np.maximum(0.0, -bary.min(axis=1)) * size
+    return float(np.max(plane + outside, initial=0.0))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Parameters and arguments
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("key, value", [
+    ("num_surface_points", 0), ("num_surface_points", 2.5), ("rays_per_point", -1), ("friction", 0.0),
+    ("friction", float("nan")), ("num_orientations", 0), ("approach", "below"), ("max_approach_angle", 0.0),
+    ("max_approach_angle", math.pi / 2), ("width_margin", -0.001), ("surface_offset", 0.0),
+])
+def test_params_reject_bad_values_naming_the_key(key, value):
+    with pytest.raises(ValueError, match=f"^{key}: "):
+        A.AntipodalParams(**{key: value})
+
+
+def test_params_defaults_are_valid_and_cone_angle():
+    p = A.AntipodalParams(friction=1.0)
+    assert p.cone_half_angle == pytest.approx(math.pi / 4)
+
+
+def test_bad_arguments_raise_value_error():
+    mesh = _box()
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="^mesh: "):
+        A.sample_antipodal("box", GRIPPER, A.AntipodalParams(), rng)
+    with pytest.raises(ValueError, match="^gripper: "):
+        A.sample_antipodal(mesh, "robotiq_2f85", A.AntipodalParams(), rng)
+    with pytest.raises(ValueError, match="^params: "):
+        A.sample_antipodal(mesh, GRIPPER, {}, rng)
+    with pytest.raises(ValueError, match="^rng: "):
+        A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(), 0)
+    with pytest.raises(ValueError, match="^object_pose: "):
+        A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(), rng, object_pose=np.diag([1.0, 1.0, -1.0, 1.0]))
+    with pytest.raises(ValueError, match="width_margin"):
+        A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(width_margin=0.1), rng)
+
+
+def test_meshes_use_the_embree_intersector():
+    assert A.uses_embree(_box())
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Geometry
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("friction", [0.2, 0.5, 0.9])
+def test_box_contacts_lie_on_opposite_faces_within_the_cone(friction):
+    mesh = _box()
+    half = np.array(BOX_EXTENTS) / 2
+    params = A.AntipodalParams(num_surface_points=400, friction=friction, approach="any")
+    c = _sample(mesh, params)
+    assert len(c) > 500
+    # Inward normals are opposite coordinate axes: n1 = -n2 = +-e_k.
+    np.testing.assert_allclose(c.n1, -c.n2, atol=1e-12)
+    axis = np.argmax(np.abs(c.n1), axis=1)
+    np.testing.assert_allclose(np.abs(c.n1[np.arange(len(c)), axis]), 1.0, atol=1e-12)
+    rows = np.arange(len(c))
+    # p1 on the face whose outward normal is -n1, p2 on the opposite face.
+    np.testing.assert_allclose(c.p1[rows, axis], -np.sign(c.n1[rows, axis]) * half[axis], atol=1e-9)
+    np.testing.assert_allclose(c.p2[rows, axis], np.sign(c.n1[rows, axis]) * half[axis], atol=1e-9)
+    assert np.all(np.abs(c.p1) <= half + 1e-9) and np.all(np.abs(c.p2) <= half + 1e-9)
+    a1, a2 = _cone_angles(c)
+    assert a1.max() <= math.atan(friction) + 1e-9
+    assert a2.max() <= math.atan(friction) + 1e-9
+    # The 0.12 m axis is wider than the 2F-85 opens: never used.
+    assert not np.any(axis == 2)
+    assert c.rejected.width_too_large > 0
+
+
+def test_contacts_are_on_the_surface():
+    for mesh in (_box(), _sphere(), load_mesh(ASSETS / "mug.obj")):
+        c = _sample(mesh, A.AntipodalParams(num_surface_points=200, num_orientations=2, approach="any"))
+        assert len(c) > 50
+        assert _off_face(mesh, c.p1, c.face1) < 1e-9
+        assert _off_face(mesh, c.p2, c.face2) < 1e-9
+        # The recorded faces are the contacts' faces: the normals are theirs.
+        np.testing.assert_allclose(c.n1, -mesh.face_normals[c.face1])
+        np.testing.assert_allclose(c.n2, -mesh.face_normals[c.face2])
+
+
+@pytest.mark.parametrize("friction", [0.05, 0.3])
+def test_sphere_contact_lines_pass_near_the_centre(friction):
+    mesh = _sphere()
+    c = _sample(mesh, A.AntipodalParams(num_surface_points=400, friction=friction, approach="any"))
+    assert len(c) > 500
+    # A line within the cone (half-angle atan(mu)) of a face normal that deviates by at most `facet` from the radial
+    # direction passes within r sin(atan(mu) + facet) of the centre.
+    radial = mesh.vertices[mesh.faces] / np.linalg.norm(mesh.vertices[mesh.faces], axis=2, keepdims=True)
+    facet = np.arccos(np.clip(np.einsum("fvk,fk->fv", radial, mesh.face_normals), -1, 1)).max()
+    u = (c.p2 - c.p1) / c.width[:, None]
+    dist = np.linalg.norm(np.cross(-c.p1, u), axis=1)  # distance of the centre (origin) from each line
+    assert dist.max() <= SPHERE_RADIUS * math.sin(math.atan(friction) + facet) + 1e-9
+    # And the chords are near-diameters.
+    assert c.width.min() >= 2 * SPHERE_RADIUS * math.cos(math.atan(friction) + facet) * math.cos(facet) - 1e-9
+
+
+@pytest.mark.parametrize("gripper_name, margin", [("robotiq_2f85", 0.01), ("panda", 0.0), ("box_jaw", 0.03)])
+def test_no_kept_grasp_has_width_outside_the_opening_range(gripper_name, margin):
+    gripper = get_gripper(gripper_name)
+    mesh = _box()
+    params = A.AntipodalParams(num_surface_points=400, width_margin=margin, approach="any")
+    c = _sample(mesh, params, gripper=gripper)
+    assert len(c) > 0
+    assert c.width.min() >= max(gripper.min_width, params.surface_offset)
+    assert c.width.max() + margin <= gripper.max_width + 1e-12
+    np.testing.assert_allclose(c.width, np.linalg.norm(c.p2 - c.p1, axis=1))
+
+
+def test_thin_object_widths_too_small_for_a_gripper_with_a_minimum():
+    gripper = dataclasses.replace(GRIPPER, min_width=0.03)
+    mesh = trimesh.creation.box((0.02, 0.06, 0.06))  # 2 cm thick plate: pinching it needs width 0.02 < 0.03
+    c = _sample(mesh, A.AntipodalParams(approach="any"), gripper=gripper)
+    assert c.rejected.width_too_small > 0
+    assert len(c) == 0 or c.width.min() >= 0.03
+
+
+def test_mug_wall_pairs_pinch_one_wall():
+    """On a thin-walled mug the second contact is where the ray first leaves the material: no pair spans the
+    cavity, so the segment p1 -> p2 lies inside the object."""
+    mesh = load_mesh(ASSETS / "mug.obj")
+    c = _sample(mesh, A.AntipodalParams(num_surface_points=300, approach="any"))
+    assert len(c) > 100
+    assert c.rejected.no_exit <= 0.01 * c.rejected.rays
+    mids = (c.p1 + c.p2) / 2
+    assert mesh.contains(mids[::8]).all()
+
+
+def test_open_mesh_rays_through_the_hole_are_no_exit():
+    mesh = _box()
+    top = np.flatnonzero(mesh.face_normals[:, 2] > 0.5)
+    open_box = trimesh.Trimesh(mesh.vertices, np.delete(mesh.faces, top, axis=0), process=False)
+    params = A.AntipodalParams(num_surface_points=400, approach="any", friction=0.9)
+    c = _sample(open_box, params)
+    # Rays heading for the missing top leave through the hole: no second contact.
+    assert c.rejected.no_exit > 0
+    a1, a2 = _cone_angles(c)
+    assert max(a1.max(), a2.max()) <= math.atan(0.9) + 1e-9
+    assert _off_face(open_box, c.p2, c.face2) < 1e-9
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Frames and the approach filter
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def test_tcp_frame_is_right_handed_with_x_along_the_contact_line_and_origin_at_the_midpoint():
+    pose = _random_pose(3)
+    c = _sample(_sphere(), A.AntipodalParams(num_surface_points=100, approach="any"), object_pose=pose)
+    R = c.pose_object[:, :3, :3]
+    np.testing.assert_allclose(np.matmul(np.swapaxes(R, 1, 2), R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
+    x, y, z = R[:, :, 0], R[:, :, 1], R[:, :, 2]
+    np.testing.assert_allclose(x, (c.p2 - c.p1) / c.width[:, None], atol=1e-12)
+    np.testing.assert_allclose(y, np.cross(z, x), atol=1e-12)
+    np.testing.assert_allclose(c.pose_object[:, :3, 3], (c.p1 + c.p2) / 2, atol=1e-15)
+    np.testing.assert_array_equal(c.pose_object[:, 3], np.broadcast_to([0.0, 0.0, 0.0, 1.0], (len(c), 4)))
+    np.testing.assert_allclose(c.pose_world, np.matmul(pose, c.pose_object), atol=1e-15)
+    np.testing.assert_array_equal(c.object_pose, pose)
+    np.testing.assert_allclose(np.linalg.norm(c.n1, axis=1), 1.0)
+    np.testing.assert_allclose(np.linalg.norm(c.n2, axis=1), 1.0)
+    # The left pad's contact p1 is on the TCP's -x side, the right pad's p2 on +x, each at width / 2.
+    local1 = np.einsum("nji,nj->ni", R, c.p1 - c.pose_object[:, :3, 3])
+    np.testing.assert_allclose(local1, np.stack([-c.width / 2, 0 * c.width, 0 * c.width], axis=1), atol=1e-12)
+
+
+def test_orientations_are_evenly_spaced_about_the_contact_axis():
+    k = 6
+    c = _sample(_box(), A.AntipodalParams(num_surface_points=50, num_orientations=k, approach="any"))
+    _, first, counts = np.unique(c.ray_index, return_index=True, return_counts=True)
+    assert np.all(counts == k)
+    for start in first[:20]:
+        z = c.pose_object[start:start + k, :3, 2]
+        x = c.pose_object[start, :3, 0]
+        angles = np.arctan2(np.cross(z[0], z) @ x, z @ z[0])
+        np.testing.assert_allclose(np.mod(angles, 2 * np.pi), 2 * np.pi / k * np.arange(k), atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_above_never_yields_an_upward_approach(seed):
+    pose = _random_pose(seed)
+    max_angle = math.radians(40)
+    params = A.AntipodalParams(num_surface_points=300, approach="above", max_approach_angle=max_angle)
+    c = _sample(_box(), params, seed=seed, object_pose=pose)
+    assert len(c) > 0
+    z_world = c.pose_world[:, :3, 2]
+    assert z_world[:, 2].max() < 0
+    angle = np.arccos(np.clip(-z_world[:, 2], -1, 1))
+    np.testing.assert_allclose(c.approach_angle, angle, atol=1e-12)
+    assert angle.max() <= max_angle
+    assert c.rejected.approach > 0
+
+
+def test_hemisphere_and_any_filters():
+    mesh = _sphere()
+    hemi = _sample(mesh, A.AntipodalParams(num_surface_points=200, approach="hemisphere"))
+    every = _sample(mesh, A.AntipodalParams(num_surface_points=200, approach="any"))
+    assert hemi.pose_world[:, 2, 2].max() < 0
+    assert every.pose_world[:, 2, 2].max() > 0.5  # 'any' keeps upward approaches
+    assert every.rejected.approach == 0
+    # Same rng stream, so the hemisphere set is exactly the downward subset of 'any'.
+    down = every.pose_world[:, 2, 2] < 0
+    np.testing.assert_array_equal(hemi.pose_world, every.pose_world[down])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Bookkeeping and determinism
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def test_reject_counts_add_up():
+    params = A.AntipodalParams(num_surface_points=300, rays_per_point=3, num_orientations=5, approach="above")
+    for mesh in (_box(), _sphere(), load_mesh(ASSETS / "mug.obj")):
+        c = _sample(mesh, params)
+        r = c.rejected
+        assert r.rays == 300 * 3
+        assert r.rays == r.no_exit + r.outside_cone + r.width_too_small + r.width_too_large + r.pairs
+        assert r.pairs * 5 == r.approach + r.kept
+        assert r.kept == len(c) == len(c.ray_index)
+        assert set(r.as_dict()) == {"rays", "no_exit", "outside_cone", "width_too_small", "width_too_large",
+                                    "pairs", "approach", "kept"}
+
+
+def test_same_seed_gives_identical_arrays_and_another_seed_does_not():
+    mesh = load_mesh(ASSETS / "mug.obj")
+    params = A.AntipodalParams(num_surface_points=200)
+    pose = _random_pose(7)
+    a = _sample(mesh, params, seed=42, object_pose=pose)
+    b = _sample(mesh.copy(), params, seed=42, object_pose=pose)  # a fresh mesh: a fresh Embree scene
+    for name in ARRAY_FIELDS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        assert getattr(a, name).dtype == getattr(b, name).dtype
+    assert a.rejected == b.rejected
+    c = _sample(mesh, params, seed=43, object_pose=pose)
+    assert len(c) != len(a) or not np.array_equal(c.p1, a.p1)
+
+
+def test_output_arrays_are_read_only_and_shaped():
+    c = _sample(_box(), A.AntipodalParams(num_surface_points=20))
+    n = len(c)
+    shapes = {"p1": (n, 3), "p2": (n, 3), "n1": (n, 3), "n2": (n, 3), "face1": (n,), "face2": (n,), "width": (n,),
+              "pose_object": (n, 4, 4), "pose_world": (n, 4, 4), "approach_angle": (n,), "ray_index": (n,),
+              "object_pose": (4, 4)}
+    for name in ARRAY_FIELDS:
+        arr = getattr(c, name)
+        assert arr.shape == shapes[name], name
+        assert not arr.flags.writeable, name
+    with pytest.raises(ValueError):
+        c.width[0] = 1.0
+
+
+def test_nothing_kept_gives_empty_arrays():
+    big = trimesh.creation.box((0.3, 0.3, 0.3))  # wider than any opening
+    c = _sample(big, A.AntipodalParams(num_surface_points=50))
+    assert len(c) == 0 and c.rejected.pairs == 0
+    assert c.pose_world.shape == (0, 4, 4) and c.p1.shape == (0, 3)
