@@ -1,0 +1,832 @@
+"""The grasp-and-lift protocol in MuJoCo and its outcome labels (DESIGN sections 4, 5.4, 6).
+
+:class:`LiftSimulator` takes a compiled scene (ground / support geoms, free object bodies, a floating gripper attached
+with :func:`stages.grippers.attach_gripper`) and rolls out grasps in it: place the gripper at the pre-grasp pose,
+approach, close under a force limit, lift, hold, optionally shake, and label what happened with one of six outcome
+codes (:class:`Outcome`). The rules are written out in :class:`LiftSimulator`'s docstring.
+
+Frames: a grasp is the 4x4 world pose of the gripper's TCP frame (origin midway between the pads, z = approach
+direction palm -> object, x = closing direction; the *left* jaw sits on -x, the *right* on +x) and a pad separation
+``width`` in metres (:mod:`stages.grippers`).
+
+Speed (``bench/bench_rollouts.py``; 2F-85 on the bundled box / can, one core): a successful rollout is ~490 steps
+(0.98 s simulated: 0.15 s approach, ~0.12 s closing, 0.5 s lift, 0.2 s hold); failures stop earlier. Most of a
+rollout is waiting, so the protocol keeps simulated time short and stops as soon as a rule decides, and it keeps
+Python out of the step loop: the mocap target is written once per step only while the gripper moves (a row copy,
+~1 us against ~15 us per step), closing and holding run as ``mj_step(model, data, nstep=check_interval)``, and the
+rules are checked once per ``check_interval`` steps on cached ids and views (squared distances and cosines, no
+allocation beyond a few small temporaries). Measured: 130-190 rollouts/s, within 1.1x of the bare ``mj_step`` cost of
+the same steps.
+
+Determinism: every rollout starts from ``mj_resetData`` (which also clears the solver's warm start) plus the saved
+initial ``qpos``, so a rollout's result depends only on its inputs, not on earlier rollouts in the same
+:class:`LiftSimulator`; no wall clock, no threads, no global random state.
+"""
+
+from __future__ import annotations
+
+import copy
+import enum
+import math
+import numbers
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+
+import mujoco
+import numpy as np
+
+from stages.grippers import PhysicsOptions
+
+__all__ = [
+    "Outcome",
+    "OUTCOME_NAMES",
+    "PHASES",
+    "LiftParams",
+    "RolloutResult",
+    "LiftSimulator",
+]
+
+
+class Outcome(enum.IntEnum):
+    """Outcome codes of a grasp-and-lift rollout (the research report's codes, DESIGN section 5.4)."""
+
+    COLLISION_WITH_GROUND = 0
+    COLLISION_WITH_TARGET = 1
+    COLLISION_WITH_CLUTTER = 2
+    NO_CONTACT_ESTABLISHED = 3
+    SLIPPED_DURING_LIFTING = 4
+    SUCCESS = 5
+
+
+#: Outcome name by code: ``OUTCOME_NAMES[code]``.
+OUTCOME_NAMES: tuple[str, ...] = tuple(o.name.lower() for o in Outcome)
+
+#: Phases of a rollout, in order; :attr:`RolloutResult.decided_in` is one of them (``"end"``: all phases ran).
+PHASES: tuple[str, ...] = ("placement", "approach", "closing", "lifting", "holding", "shaking", "end")
+
+# Geom roles (index = outcome code for a gripper contact with such a geom during placement/approach).
+_SUPPORT, _TARGET, _CLUTTER, _GRIPPER = 0, 1, 2, 3
+# Gripper geom sides.
+_LEFT, _RIGHT, _PALM, _NOT_GRIPPER = 0, 1, 2, -1
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Argument checks (programmer errors -> ValueError naming the argument)
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _check_number(name: str, value, *, low: float | None = None, low_open: bool = False,
+                  high: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+        raise ValueError(f"{name}: expected a finite number, got {value!r}")
+    value = float(value)
+    if low is not None and (value < low or (low_open and value == low)):
+        raise ValueError(f"{name}: must be {'>' if low_open else '>='} {low}, got {value}")
+    if high is not None and value > high:
+        raise ValueError(f"{name}: must be <= {high}, got {value}")
+    return value
+
+
+def _check_int(name: str, value, *, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
+        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
+    return int(value)
+
+
+def _check_bool(name: str, value) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name}: expected a bool, got {value!r}")
+    return bool(value)
+
+
+def _check_pose(name: str, T) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), unit quaternion (4,)) of a 4x4 rigid transform; ValueError naming ``name`` otherwise."""
+    try:
+        T = np.asarray(T, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a 4x4 transform, got {T!r}") from None
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ValueError(f"{name}: expected a finite 4x4 transform, got shape {T.shape}")
+    R = np.ascontiguousarray(T[:3, :3])
+    # 1e-5, not 1e-6: poses read back from float32 storage are orthonormal only to ~1e-7 per entry, times a few.
+    if float(np.abs(R @ R.T - np.eye(3)).max()) > 1e-5 or float(np.linalg.det(R)) <= 0:
+        raise ValueError(f"{name}: the rotation block is not a proper rotation (orthonormal, det +1)")
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, R.reshape(-1))
+    return T[:3, 3].copy(), quat
+
+
+def _check_width(width) -> float:
+    return _check_number("width", width, low=0.0)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Parameters
+# ---------------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LiftParams:
+    """Protocol, outcome thresholds and physics settings of a grasp-and-lift rollout.
+
+    The defaults are tuned on the Robotiq 2F-85 (``tests/test_lift.py``): a 1 kg box at friction 0.5 must be lifted
+    and held, a 3 kg box at friction 0.3 must slip. Coulomb says the first needs a grip of 1 kg x (9.81 + 5 m/s^2 of
+    lift acceleration) / (2 x 0.5) = 14.8 N per jaw and the second 49 N just to hold still; measured with these
+    defaults, the 1 kg box is held from 14 N on and the 3 kg box slips up to 60 N (held from 65 N). ``grip_force`` =
+    30 N sits about in the geometric middle (a factor ~2 from either edge; the 2F-85 grips with 20-235 N).
+    """
+
+    # -- approach ---------------------------------------------------------------------------------------------------
+    approach_distance: float = 0.05
+    """Pre-grasp offset (m): the gripper is placed this far back along the TCP's -z (approach) axis from the grasp
+    pose and moves along +z to it."""
+    approach_speed: float = 0.5
+    """Peak TCP speed (m/s) of the approach (trapezoidal speed profile)."""
+    approach_acceleration: float = 10.0
+    """Acceleration and deceleration (m/s^2) of the approach profile; the gripper arrives at rest."""
+    width_margin: float = 0.01
+    """The jaws open to ``width + width_margin`` (m) pad separation before the approach (clipped to the gripper's
+    ``[min_width, max_width]``), i.e. ``width_margin / 2`` of clearance per side."""
+
+    # -- closing ----------------------------------------------------------------------------------------------------
+    grip_force: float | None = 30.0
+    """Force (N) each jaw presses with when closed on an object: the width actuator's force limit. The jaw damping
+    is rescaled with it so the jaws still close at the gripper's own closing speed. None keeps the gripper model's
+    ``force_limit`` (100 N for the 2F-85, which also holds a 3 kg box at friction 0.3)."""
+    close_speed_tol: float = 0.005
+    """Closing ends when the pad separation changed slower than this (m/s), averaged over one check interval: the
+    jaws have stopped (on the object, or fully closed)."""
+    close_timeout: float = 1.0
+    """Closing ends after at most this (s) even if the jaws still move (the 2F-85 closes fully in 0.57 s)."""
+
+    # -- lift, hold, shake ------------------------------------------------------------------------------------------
+    lift_height: float = 0.2
+    """The TCP is lifted straight up (world +z) by this (m) after closing."""
+    lift_speed: float = 0.5
+    """Peak speed (m/s) of the lift (trapezoidal profile)."""
+    lift_acceleration: float = 5.0
+    """Acceleration and deceleration (m/s^2) of the lift profile (what the grip must resist on top of gravity)."""
+    hold_time: float = 0.2
+    """Time (s) the gripper holds still at the top before the outcome is judged (or the shake starts)."""
+    shake: bool = False
+    """ACRONYM-style shake after the hold: ``shake_cycles`` oscillations of the TCP along world z (linear
+    acceleration against the grip's friction), then as many about the TCP x (closing) axis (angular acceleration,
+    resisted only by the pads' torsional friction, the weak axis of a two-finger grasp)."""
+    shake_amplitude: float = 0.02
+    """Peak displacement (m) of the vertical shake (peak acceleration ~ amplitude * (2 pi frequency)^2)."""
+    shake_angle: float = 0.2
+    """Peak rotation (rad) of the rotational shake about the TCP x axis."""
+    shake_frequency: float = 2.0
+    """Frequency (Hz) of both shakes. Each is a sine under a Hann window, so it starts and ends at rest."""
+    shake_cycles: int = 2
+    """Oscillations per shake axis."""
+
+    # -- outcome thresholds -----------------------------------------------------------------------------------------
+    max_target_shift: float = 0.005
+    """During placement/approach the target's centre of mass may move at most this (m) from its initial position;
+    more is a collision with the target (code 1). Other objects moving more is a collision with clutter (code 2)."""
+    max_target_turn: float = math.radians(5.0)
+    """As ``max_target_shift``, for rotation (rad)."""
+    min_lift_fraction: float = 0.5
+    """After lift/hold/shake the target's centre of mass must have risen by at least this fraction of
+    ``lift_height`` since the end of closing; less is a slip (code 4)."""
+    slip_tolerance: float = 0.02
+    """From the end of closing on, the target's centre of mass may move at most this (m) in the TCP frame; more is
+    a slip (code 4). Checked at every check interval, so the rollout stops when the object falls."""
+    slip_rotation_tolerance: float = math.radians(20.0)
+    """As ``slip_tolerance``, for the target's rotation relative to the TCP frame (rad)."""
+
+    # -- mode and pacing --------------------------------------------------------------------------------------------
+    gravity_until_closed: bool = False
+    """Free-space evaluation (ACRONYM): gravity is off during placement, approach and closing (objects float where
+    they are; no support needed) and switched on for lift, hold and shake."""
+    check_interval: int = 10
+    """The rules are checked every this many steps (10 x 2 ms = 20 ms), not every step: fewer Python round trips.
+    Contacts that begin and end between two checks are not seen (a graze that moves nothing)."""
+
+    # -- physics (written into the simulator's copy of the model) ---------------------------------------------------
+    timestep: float = 0.002
+    """Integration step (s)."""
+    cone: str = "elliptic"
+    """Friction cone, ``"elliptic"`` or ``"pyramidal"`` (elliptic: no creep of held objects, DESIGN section 6)."""
+    impratio: float = 10.0
+    """Ratio of frictional to normal constraint impedance (> 1 makes friction stiffer, held objects do not creep)."""
+    noslip_iterations: int = 0
+    """MuJoCo's post-solver no-slip iterations (0 = off; costs ~30-40% more per step, not needed with the above)."""
+    iterations: int = 100
+    """Maximum main-solver iterations per step (the Newton solver usually converges in a few)."""
+    ls_iterations: int = 50
+    """Maximum line-search iterations per solver iteration."""
+    integrator: str = "implicitfast"
+    """``"implicitfast"`` (implicit in the stiff jaw damping), ``"implicit"``, ``"euler"`` or ``"rk4"``."""
+
+    def __post_init__(self) -> None:
+        for key in ("approach_distance", "width_margin", "lift_height", "hold_time", "shake_amplitude",
+                    "shake_angle", "max_target_shift", "max_target_turn", "slip_tolerance",
+                    "slip_rotation_tolerance"):
+            object.__setattr__(self, key, _check_number(key, getattr(self, key), low=0.0))
+        for key in ("approach_speed", "approach_acceleration", "close_speed_tol", "close_timeout", "lift_speed",
+                    "lift_acceleration", "shake_frequency", "timestep"):
+            object.__setattr__(self, key, _check_number(key, getattr(self, key), low=0.0, low_open=True))
+        if self.grip_force is not None:
+            object.__setattr__(self, "grip_force", _check_number("grip_force", self.grip_force, low=0.0,
+                                                                 low_open=True))
+        object.__setattr__(self, "min_lift_fraction",
+                           _check_number("min_lift_fraction", self.min_lift_fraction, low=0.0, high=1.0))
+        object.__setattr__(self, "shake", _check_bool("shake", self.shake))
+        object.__setattr__(self, "gravity_until_closed", _check_bool("gravity_until_closed",
+                                                                     self.gravity_until_closed))
+        object.__setattr__(self, "shake_cycles", _check_int("shake_cycles", self.shake_cycles, low=1))
+        object.__setattr__(self, "check_interval", _check_int("check_interval", self.check_interval, low=1))
+        object.__setattr__(self, "noslip_iterations", _check_int("noslip_iterations", self.noslip_iterations, low=0))
+        object.__setattr__(self, "iterations", _check_int("iterations", self.iterations, low=1))
+        object.__setattr__(self, "ls_iterations", _check_int("ls_iterations", self.ls_iterations, low=1))
+        self.physics_options((0.0, 0.0, -9.81))  # validates timestep, cone, impratio, integrator (names the field)
+
+    def physics_options(self, gravity) -> PhysicsOptions:
+        """These physics settings as :class:`stages.grippers.PhysicsOptions`, with the scene's ``gravity``."""
+        return PhysicsOptions(timestep=self.timestep, cone=self.cone, impratio=self.impratio,
+                              integrator=self.integrator, gravity=tuple(float(g) for g in gravity))
+
+    def to_dict(self) -> dict:
+        """Plain-data view (for configs and metadata)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Result
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _bits(value) -> bytes:
+    if isinstance(value, np.ndarray):
+        return value.dtype.str.encode() + str(value.shape).encode() + value.tobytes()
+    if isinstance(value, float):
+        return struct.pack("<d", value)
+    return repr(value).encode()
+
+
+@dataclass(frozen=True, eq=False)
+class RolloutResult:
+    """What one grasp-and-lift rollout did. Arrays are read-only; ``==`` means bit-identical in every field."""
+
+    code: int
+    """Outcome code, 0-5 (:class:`Outcome`)."""
+    name: str
+    """Outcome name, ``OUTCOME_NAMES[code]``."""
+    decided_in: str
+    """Phase in which the outcome was decided (:data:`PHASES`); ``"end"`` when every phase ran (code 4 or 5)."""
+    steps: int
+    """Simulation steps taken (the rollout stops as soon as the outcome is decided)."""
+    sim_time: float
+    """Simulated time (s), ``steps * timestep``."""
+    closed_width: float
+    """Pad separation (m) at the end of closing; NaN when the rollout ended before closing."""
+    lift_gain: float
+    """Rise (m) of the target's centre of mass, world z, from the end of closing to the end; NaN before that."""
+    rel_translation: float
+    """Displacement (m) of the target's centre of mass in the TCP frame from the end of closing to the end (the
+    slip); NaN when the rollout ended before closing finished."""
+    rel_rotation: float
+    """Rotation angle (rad) of the target relative to the TCP frame over the same span; NaN likewise."""
+    contact_points: np.ndarray
+    """``(k, 3) float64`` world positions (m) of the jaw-target contacts at the end of closing (pads and finger
+    links; MuJoCo's contact point, midway between the two surfaces). ``k = 0`` when closing was not reached."""
+    contact_normals: np.ndarray
+    """``(k, 3) float64`` unit contact normals pointing INTO the target (the direction the jaw pushes), world."""
+    contact_forces: np.ndarray
+    """``(k,) float64`` normal force (N) of each contact (``mj_contactForce``), >= 0."""
+    contact_fingers: np.ndarray
+    """``(k,) int8`` which jaw made each contact: 0 left (on the TCP's -x side), 1 right (+x side)."""
+
+    def __post_init__(self) -> None:
+        for key in ("contact_points", "contact_normals", "contact_forces", "contact_fingers"):
+            getattr(self, key).setflags(write=False)
+
+    @property
+    def success(self) -> bool:
+        """``code == Outcome.SUCCESS``."""
+        return self.code == Outcome.SUCCESS
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, RolloutResult):
+            return NotImplemented
+        return all(_bits(getattr(self, f.name)) == _bits(getattr(other, f.name)) for f in fields(self))
+
+    __hash__ = None  # type: ignore[assignment]  # mutable-array fields: not hashable
+
+    def to_dict(self) -> dict:
+        """Plain-data view: arrays as nested lists."""
+        return {f.name: (getattr(self, f.name).tolist() if isinstance(getattr(self, f.name), np.ndarray)
+                         else getattr(self, f.name)) for f in fields(self)}
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Motion profiles
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _trapezoid(distance: float, speed: float, accel: float, dt: float) -> np.ndarray:
+    """Distance travelled (m) at the end of each step of a rest-to-rest trapezoidal speed profile, ``(n,)``.
+
+    Peak speed ``speed`` (m/s), acceleration ``accel`` (m/s^2); a triangle when the distance is too short to reach
+    ``speed``. The last entry is exactly ``distance``; empty for ``distance == 0``.
+    """
+    if distance <= 0.0:
+        return np.zeros(0)
+    t_acc = speed / accel
+    if accel * t_acc * t_acc > distance:  # never reaches the peak speed: triangle
+        t_acc = math.sqrt(distance / accel)
+        speed = accel * t_acc
+    t_cruise = (distance - accel * t_acc * t_acc) / speed
+    total = 2.0 * t_acc + t_cruise
+    n = max(1, math.ceil(total / dt - 1e-9))
+    t = np.minimum(dt * np.arange(1, n + 1), total)
+    d_acc = 0.5 * accel * t_acc * t_acc
+    t_dec = np.maximum(t - t_acc - t_cruise, 0.0)
+    s = np.where(t < t_acc, 0.5 * accel * t * t,
+                 np.where(t < t_acc + t_cruise, d_acc + speed * (t - t_acc),
+                          d_acc + speed * t_cruise + speed * t_dec - 0.5 * accel * t_dec * t_dec))
+    s[-1] = distance
+    return s
+
+
+def _shake_wave(amplitude: float, frequency: float, cycles: int, dt: float) -> np.ndarray:
+    """``amplitude * sin(2 pi f t) * sin^2(pi t / T)`` at the end of each step over ``T = cycles / f``, ``(n,)``:
+    a sine under a Hann window, so position and velocity start and end at zero (no velocity jump)."""
+    total = cycles / frequency
+    n = max(1, math.ceil(total / dt - 1e-9))
+    t = np.minimum(dt * np.arange(1, n + 1), total)
+    return amplitude * np.sin(2.0 * math.pi * frequency * t) * np.sin(math.pi * t / total) ** 2
+
+
+def _quat_mul(q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternion ``q (4,)`` with each row of ``r (n, 4)`` (w, x, y, z)."""
+    w0, x0, y0, z0 = q
+    w1, x1, y1, z1 = r.T
+    return np.stack([w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1,
+                     w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
+                     w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1,
+                     w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1], axis=1)
+
+
+def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Rotation angle (rad) between two 3x3 rotation matrices.
+
+    atan2(sin, cos) of ``R = Ra^T Rb``, not acos of the trace alone: acos loses all precision near 0 (an angle
+    below ~1e-8 rad reads as exactly 0, one of 1e-4 rad is off by percent)."""
+    R = Ra.T @ Rb
+    c = (R[0, 0] + R[1, 1] + R[2, 2] - 1.0) / 2.0
+    s = 0.5 * math.sqrt((R[2, 1] - R[1, 2]) ** 2 + (R[0, 2] - R[2, 0]) ** 2 + (R[1, 0] - R[0, 1]) ** 2)
+    return math.atan2(s, c)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Simulator
+# ---------------------------------------------------------------------------------------------------------------
+
+
+class _JawsStopped(Exception):
+    """Internal: the closing jaws have stopped."""
+
+
+class _Decided(Exception):
+    """Internal: a rule fired; carries the outcome code and phase."""
+
+    def __init__(self, code: int, phase: str) -> None:
+        super().__init__(code, phase)
+        self.code = code
+        self.phase = phase
+
+
+class LiftSimulator:
+    """Grasp-and-lift rollouts in one compiled scene, reusing one :class:`mujoco.MjData`.
+
+    The scene model holds the static environment (a plane named ``ground`` and/or geoms named ``support/...``;
+    every geom fixed to the world counts as support, whatever its name), objects as free bodies (named
+    ``obj/<index>_<name>`` by convention; any movable body that is not the gripper counts as an object), and a
+    floating gripper attached with :func:`stages.grippers.attach_gripper` under ``prefix``. Ids are looked up by
+    name once here, never assumed by index. The simulator works on its own copy of the model: it writes the
+    physics settings of ``params`` into it and sets the gripper's force limit to ``params.grip_force`` (rescaling
+    the jaw damping so the jaws keep the gripper's closing speed). The caller's model is not modified.
+
+    Protocol of :meth:`rollout` (phases as in :data:`PHASES`), and the outcome rules. The rules are checked in this
+    order; the first that fires decides the outcome and the simulation stops there. "Contact" means a MuJoCo contact
+    between a gripper geom and a non-gripper geom; a gripper geom touching several kinds at once gives the lowest
+    code. Checks run every ``check_interval`` steps and at the end of each phase.
+
+    1. **placement** (no step): ``mj_resetData`` plus the scene's initial ``qpos``; the gripper is put at the
+       pre-grasp pose (the grasp pose moved ``approach_distance`` back along its -z) with the jaws open at
+       ``clip(width + width_margin, min_width, max_width)``; ``mj_forward``.
+       Contact with support -> **0 collision_with_ground**; with the target -> **1 collision_with_target**; with
+       another object -> **2 collision_with_clutter**.
+    2. **approach**: the mocap target moves along +z to the grasp pose (trapezoidal profile, ``approach_speed``,
+       ``approach_acceleration``). The same contact rules as in 1 (0 / 1 / 2); and the target's centre of mass
+       moved more than ``max_target_shift`` or turned more than ``max_target_turn`` from its initial pose -> **1**;
+       another object moved/turned more than that -> **2**.
+    3. **closing**: the width command goes to ``min_width``, so each jaw presses with ``grip_force``. Closing ends
+       when the pad separation changes slower than ``close_speed_tol`` averaged over a check interval, or after
+       ``close_timeout``. Then both jaws (each jaw's pad or finger link) must touch the target; otherwise ->
+       **3 no_contact_established**. The jaw-target contacts are recorded now (points, normals into the target,
+       normal forces, jaw). Gravity is switched on here in free-space mode (``gravity_until_closed``).
+    4. **lifting, holding, shaking**: the TCP rises ``lift_height`` straight up in world z (trapezoidal profile,
+       ``lift_speed``, ``lift_acceleration``), holds for ``hold_time``, then shakes if ``shake``. At every check: the
+       target's centre of mass moved more than ``slip_tolerance`` in the TCP frame since the end of closing, or the
+       target turned relative to the TCP frame by more than ``slip_rotation_tolerance`` -> **4
+       slipped_during_lifting**. At the end: the target's centre of mass rose less than
+       ``min_lift_fraction * lift_height`` since the end of closing -> **4**.
+    5. Otherwise -> **5 success**.
+
+    Collisions after the approach (a lifted object brushing a neighbour, a finger touching the table while closing)
+    are not labels of their own: they count only through their effect on the grasp (3 or 4).
+
+    Parameters
+    ----------
+    model
+        Compiled scene with the gripper attached (see above).
+    params
+        Protocol, thresholds and physics; None means ``LiftParams()``.
+    qpos
+        ``(nq,)`` initial configuration of the scene (e.g. settled object poses); None means ``model.qpos0``.
+        The gripper's own joints in it are ignored (every rollout places the gripper).
+    prefix
+        Name prefix of the gripper's elements (as given to :func:`stages.grippers.attach_gripper`).
+    """
+
+    def __init__(self, model: mujoco.MjModel, params: LiftParams | None = None, *, qpos=None,
+                 prefix: str = "gripper/") -> None:
+        if not isinstance(model, mujoco.MjModel):
+            raise ValueError(f"model: expected a compiled mujoco.MjModel, got {type(model).__name__}")
+        params = LiftParams() if params is None else params
+        if not isinstance(params, LiftParams):
+            raise ValueError(f"params: expected LiftParams, got {type(params).__name__}")
+        if not isinstance(prefix, str) or not prefix:
+            raise ValueError(f"prefix: expected a non-empty string, got {prefix!r}")
+        self.params = params
+        self.prefix = prefix
+        # Our own copy: physics options, grip force and (in free-space mode) gravity are written into it.
+        self.model = m = copy.deepcopy(model)
+        self._gravity = np.array(m.opt.gravity, dtype=float)
+        params.physics_options(self._gravity).apply(m)
+        m.opt.noslip_iterations = params.noslip_iterations
+        m.opt.iterations = params.iterations
+        m.opt.ls_iterations = params.ls_iterations
+
+        # -- gripper elements, by name -------------------------------------------------------------------------
+        def lookup(objtype, local: str) -> int:
+            idx = mujoco.mj_name2id(m, objtype, prefix + local)
+            if idx < 0:
+                kind = mujoco.mjtObj(objtype).name.removeprefix("mjOBJ_").lower()
+                raise ValueError(f"model: no {kind} named {prefix + local!r} (is the gripper attached with "
+                                 f"prefix {prefix!r}?)")
+            return idx
+
+        self._act = lookup(mujoco.mjtObj.mjOBJ_ACTUATOR, "width")
+        self._base = lookup(mujoco.mjtObj.mjOBJ_BODY, "base")
+        mocap_body = lookup(mujoco.mjtObj.mjOBJ_BODY, "mocap")
+        self._mocap = int(m.body_mocapid[mocap_body])
+        if self._mocap < 0:
+            raise ValueError(f"model: body {prefix + 'mocap'!r} is not a mocap body")
+        free = lookup(mujoco.mjtObj.mjOBJ_JOINT, "free")
+        self._base_qadr = int(m.jnt_qposadr[free])
+        jaw_joints = [lookup(mujoco.mjtObj.mjOBJ_JOINT, f"{side}_slide") for side in ("left", "right")]
+        self._jaw_qadr = [int(m.jnt_qposadr[j]) for j in jaw_joints]
+        self._jaw_vadr = [int(m.jnt_dofadr[j]) for j in jaw_joints]
+        jaw_bodies = [lookup(mujoco.mjtObj.mjOBJ_BODY, f"{side}_jaw") for side in ("left", "right")]
+        self.min_width, self.max_width = (float(v) for v in m.actuator_ctrlrange[self._act])
+        """Pad separation range (m) of the gripper (its width actuator's control range)."""
+
+        # -- grip force: force limit, and jaw damping rescaled to keep the closing speed --------------------------
+        # grippers.py sets damping = 2 * force_limit / closing_speed per jaw, so a saturated actuator closes the
+        # width at closing_speed; keep that ratio for the new force limit.
+        model_force = float(m.actuator_forcerange[self._act][1])
+        damping = float(m.dof_damping[self._jaw_vadr[0]])
+        self.closing_speed = 2.0 * model_force / damping if damping > 0 else math.inf
+        """Width rate (m/s) of the closing jaws when nothing is in the way."""
+        self.grip_force = model_force if params.grip_force is None else params.grip_force
+        """Force (N) each jaw presses with when closed on an object."""
+        m.actuator_forcerange[self._act] = (-self.grip_force, self.grip_force)
+        if damping > 0:
+            for vadr in self._jaw_vadr:
+                m.dof_damping[vadr] = damping * self.grip_force / model_force
+
+        # -- geom roles ---------------------------------------------------------------------------------------------
+        gripper_root = int(m.body_rootid[self._base])
+        body_side = np.full(m.nbody, _NOT_GRIPPER, dtype=np.int8)
+        for b in range(m.nbody):
+            if m.body_rootid[b] == gripper_root:
+                body_side[b] = _PALM
+        for side, jaw in ((_LEFT, jaw_bodies[0]), (_RIGHT, jaw_bodies[1])):
+            for b in range(m.nbody):
+                if self._is_descendant(b, jaw):
+                    body_side[b] = side
+        self._geom_side = body_side[m.geom_bodyid]
+        """(ngeom,) int8: 0 left jaw, 1 right jaw, 2 palm/base, -1 not the gripper."""
+        self._geom_is_gripper = self._geom_side != _NOT_GRIPPER
+        weld = m.body_weldid[m.geom_bodyid]
+        static = (weld == 0) | (m.body_mocapid[weld] >= 0)
+        names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or "" for g in range(m.ngeom)]
+        named_support = np.array([n == "ground" or n.startswith("support/") for n in names], dtype=bool)
+        self._geom_static = (static | named_support) & ~self._geom_is_gripper
+        self._geom_root = m.body_rootid[m.geom_bodyid].astype(np.int64)
+        # Objects: movable root bodies that are not the gripper (free bodies under the world).
+        objects = [b for b in range(1, m.nbody)
+                   if m.body_rootid[b] == b and body_side[b] == _NOT_GRIPPER and m.body_weldid[b] != 0
+                   and m.body_mocapid[b] < 0]
+        self._objects = np.array(objects, dtype=np.int64)
+        self.object_names: tuple[str, ...] = tuple(mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or ""
+                                                   for b in objects)
+        """Names of the movable object bodies (possible targets)."""
+        self._roles: dict[str, tuple[int, np.ndarray, int]] = {}
+        self._shift2 = params.max_target_shift ** 2
+        self._cos_half_turn = math.cos(min(params.max_target_turn, math.pi) / 2.0)
+        self._slip2 = params.slip_tolerance ** 2
+        self._cos_slip = math.cos(min(params.slip_rotation_tolerance, math.pi))
+
+        # -- initial state ------------------------------------------------------------------------------------------
+        self.data = mujoco.MjData(m)
+        """The one :class:`mujoco.MjData` every rollout reuses (after a rollout: its final state)."""
+        if qpos is None:
+            qpos = m.qpos0
+        qpos = np.array(qpos, dtype=float)
+        if qpos.shape != (m.nq,) or not np.isfinite(qpos).all():
+            raise ValueError(f"qpos: expected {m.nq} finite numbers, got shape {qpos.shape}")
+        qpos.setflags(write=False)
+        self._qpos_init = qpos
+
+        # -- cached views into data (valid for the life of self.data) and motion profiles --------------------------
+        d = self.data
+        self._qpos, self._ctrl = d.qpos, d.ctrl
+        self._mocap_pos, self._mocap_quat = d.mocap_pos[self._mocap], d.mocap_quat[self._mocap]
+        self._xipos, self._xquat, self._xmat, self._xpos = d.xipos, d.xquat, d.xmat, d.xpos
+        self._gravity_view = m.opt.gravity
+        dt = float(m.opt.timestep)
+        self._dt = dt
+        self._approach_s = _trapezoid(params.approach_distance, params.approach_speed,
+                                      params.approach_acceleration, dt)
+        lift_s = _trapezoid(params.lift_height, params.lift_speed, params.lift_acceleration, dt)
+        self._lift_offsets = np.zeros((len(lift_s), 3))
+        self._lift_offsets[:, 2] = lift_s
+        self._hold_steps = int(round(params.hold_time / dt))
+        self._close_max_steps = max(1, math.ceil(params.close_timeout / dt - 1e-9))
+        if params.shake:
+            self._shake_z = _shake_wave(params.shake_amplitude, params.shake_frequency, params.shake_cycles, dt)
+            half = 0.5 * _shake_wave(params.shake_angle, params.shake_frequency, params.shake_cycles, dt)
+            self._shake_qx = np.stack([np.cos(half), np.sin(half), np.zeros_like(half), np.zeros_like(half)], 1)
+        self._f6 = np.zeros(6)
+        self.steps = 0
+        """Steps taken by the current (or last) rollout."""
+
+    # -- helpers ----------------------------------------------------------------------------------------------------
+
+    def _is_descendant(self, body: int, ancestor: int) -> bool:
+        parent = self.model.body_parentid
+        while body > 0:
+            if body == ancestor:
+                return True
+            body = int(parent[body])
+        return ancestor == 0
+
+    def _target_roles(self, target_body) -> tuple[int, np.ndarray, int]:
+        """(target body id, geom roles (ngeom,) int8, index of the target in the object list), cached."""
+        if target_body in self._roles:
+            return self._roles[target_body]
+        if not isinstance(target_body, str):
+            raise ValueError(f"target_body: expected a body name, got {target_body!r}")
+        bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, target_body)
+        if bid < 0 or bid not in self._objects:
+            raise ValueError(f"target_body: no movable object body named {target_body!r}; objects: "
+                             f"{', '.join(self.object_names) or '(none)'}")
+        roles = np.where(self._geom_root == bid, _TARGET, _CLUTTER).astype(np.int8)
+        roles[self._geom_static] = _SUPPORT
+        roles[self._geom_is_gripper] = _GRIPPER
+        self._roles[target_body] = (bid, roles, int(np.flatnonzero(self._objects == bid)[0]))
+        return self._roles[target_body]
+
+    def _contact_code(self, roles: np.ndarray) -> int | None:
+        """Lowest outcome code (0 support, 1 target, 2 clutter) among current gripper contacts; None if none."""
+        ncon = self.data.ncon
+        if ncon == 0:
+            return None
+        geom = self.data.contact.geom
+        grip = self._geom_is_gripper[geom]
+        mask = grip[:, 0] != grip[:, 1]
+        if not mask.any():
+            return None
+        other = np.where(grip[:, 0], geom[:, 1], geom[:, 0])[mask]
+        return int(roles[other].min())
+
+    def _moved(self, pos0: np.ndarray, quat0: np.ndarray) -> np.ndarray:
+        """``(n_objects,) bool``: which objects' centres of mass moved more than ``max_target_shift`` or turned more
+        than ``max_target_turn`` since ``pos0 (n, 3)``, ``quat0 (n, 4)``. Squared distances and cosines, no sqrt or
+        arccos: this runs at every check of the approach."""
+        dp = self._xipos[self._objects] - pos0
+        cos_half = np.abs(np.einsum("ij,ij->i", self._xquat[self._objects], quat0))  # |<q, q0>| = cos(turn / 2)
+        return (np.einsum("ij,ij->i", dp, dp) > self._shift2) | (cos_half < self._cos_half_turn)
+
+    def _width(self) -> float:
+        return float(self._qpos[self._jaw_qadr[0]] + self._qpos[self._jaw_qadr[1]])
+
+    def _relative(self, target: int) -> tuple[np.ndarray, np.ndarray]:
+        """Target's centre of mass (3,) and rotation (3, 3) in the TCP frame."""
+        R_tcp = self._xmat[self._base].reshape(3, 3)
+        p = (self._xipos[target] - self._xpos[self._base]) @ R_tcp  # = R_tcp^T (x - x_tcp)
+        R = R_tcp.T @ self._xmat[target].reshape(3, 3)
+        return p, R
+
+    def _slipped(self, target: int, p0: np.ndarray, R0: np.ndarray) -> bool:
+        """The target moved more than ``slip_tolerance`` or turned more than ``slip_rotation_tolerance`` in the TCP
+        frame since (``p0``, ``R0``) (squared distance and cosine: this runs at every check of lift/hold/shake)."""
+        p, R = self._relative(target)
+        dp = p - p0
+        return bool(dp @ dp > self._slip2 or (float(np.vdot(R0, R)) - 1.0) / 2.0 < self._cos_slip)
+
+    def _jaw_contacts(self, target_roles: np.ndarray):
+        """Jaw-target contacts now: points (k, 3), normals into the target (k, 3), normal forces (k,), jaws (k,)."""
+        m, d = self.model, self.data
+        points, normals, forces, jaws = [], [], [], []
+        if d.ncon:
+            con = d.contact
+            geom, pos, frame = con.geom, con.pos, con.frame  # each attribute access copies all contacts: once
+            side = self._geom_side[geom]
+            for i in range(d.ncon):
+                g1, g2 = int(geom[i, 0]), int(geom[i, 1])
+                if side[i, 0] in (_LEFT, _RIGHT) and target_roles[g2] == _TARGET:
+                    jaw, sign = int(side[i, 0]), 1.0  # frame[0:3] points from geom1 (jaw) to geom2 (target)
+                elif side[i, 1] in (_LEFT, _RIGHT) and target_roles[g1] == _TARGET:
+                    jaw, sign = int(side[i, 1]), -1.0
+                else:
+                    continue
+                mujoco.mj_contactForce(m, d, i, self._f6)
+                points.append(pos[i])
+                normals.append(sign * frame[i, :3])
+                forces.append(float(self._f6[0]))
+                jaws.append(jaw)
+        k = len(forces)
+        return (np.array(points, dtype=float).reshape(k, 3), np.array(normals, dtype=float).reshape(k, 3),
+                np.array(forces, dtype=float).reshape(k), np.array(jaws, dtype=np.int8).reshape(k))
+
+    def _place(self, pos: np.ndarray, quat: np.ndarray, width: float) -> None:
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        self._qpos[:] = self._qpos_init
+        a = self._base_qadr
+        self._qpos[a:a + 3] = pos
+        self._qpos[a + 3:a + 7] = quat
+        half = width / 2.0
+        for qadr in self._jaw_qadr:
+            self._qpos[qadr] = half
+        self._ctrl[self._act] = width
+        self._mocap_pos[:] = pos
+        self._mocap_quat[:] = quat
+        mujoco.mj_forward(m, d)
+
+    def _move(self, positions: np.ndarray, quats: np.ndarray | None, phase: str, check, observer) -> None:
+        """Step once per row of ``positions (n, 3)`` (and ``quats (n, 4)``) with the mocap target there; ``check``
+        every ``check_interval`` steps and at the end."""
+        m, d = self.model, self.data
+        step = mujoco.mj_step  # looked up per call, not at import: bench/bench_rollouts.py wraps it to time it
+        mpos, mquat = self._mocap_pos, self._mocap_quat
+        n, k = len(positions), self.params.check_interval
+        for c0 in range(0, n, k):
+            c1 = min(c0 + k, n)
+            if quats is None:
+                for i in range(c0, c1):
+                    mpos[:] = positions[i]
+                    step(m, d)
+            else:
+                for i in range(c0, c1):
+                    mpos[:] = positions[i]
+                    mquat[:] = quats[i]
+                    step(m, d)
+            self.steps += c1 - c0
+            if observer is not None:
+                observer(phase, self.steps)
+            check(phase)
+
+    def _wait(self, n: int, phase: str, check, observer) -> None:
+        """Step ``n`` times with the targets fixed, ``check`` every ``check_interval`` steps and at the end."""
+        m, d = self.model, self.data
+        k = self.params.check_interval
+        done = 0
+        while done < n:
+            c = min(k, n - done)
+            mujoco.mj_step(m, d, nstep=c)
+            done += c
+            self.steps += c
+            if observer is not None:
+                observer(phase, self.steps)
+            check(phase)
+
+    # -- the protocol ---------------------------------------------------------------------------------------------
+
+    def rollout(self, T_tcp_world, width: float, target_body: str, *,
+                observer: Callable[[str, int], None] | None = None) -> RolloutResult:
+        """Roll out one grasp and label it (protocol and rules in the class docstring).
+
+        Parameters
+        ----------
+        T_tcp_world
+            ``(4, 4)`` world pose of the TCP frame at the grasp (z approach, x closing).
+        width
+            Pad separation (m) of the grasp (the object's width between the contacts); the jaws open to
+            ``width + params.width_margin``.
+        target_body
+            Name of the object body to grasp, e.g. ``"obj/0_box"``.
+        observer
+            Called as ``observer(phase, steps_so_far)`` after placement and after every chunk of steps, with
+            :attr:`data` holding the current state (for recording or benchmarking; must not modify the state).
+
+        Returns
+        -------
+        RolloutResult
+        """
+        pos, quat = _check_pose("T_tcp_world", T_tcp_world)
+        width = _check_width(width)
+        target, roles, index = self._target_roles(target_body)
+        p = self.params
+        self.steps = 0
+        R = np.asarray(T_tcp_world, dtype=float)[:3, :3]
+        z_axis = R[:, 2].copy()
+        open_width = min(max(width + p.width_margin, self.min_width), self.max_width)
+        pre = pos - p.approach_distance * z_axis
+        nan = math.nan
+        closed_width = lift_gain = rel_t = rel_r = nan
+        contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
+        self._gravity_view[:] = 0.0 if p.gravity_until_closed else self._gravity
+        try:
+            # 1. placement
+            self._place(pre, quat, open_width)
+            pos0, quat0 = self._xipos[self._objects], self._xquat[self._objects]  # fancy indexing: copies
+            if observer is not None:
+                observer("placement", 0)
+
+            def check_approach(phase: str) -> None:
+                code = self._contact_code(roles)
+                if code is not None:
+                    raise _Decided(code, phase)
+                moved = self._moved(pos0, quat0)
+                if moved[index]:
+                    raise _Decided(Outcome.COLLISION_WITH_TARGET, phase)
+                if moved.any():
+                    raise _Decided(Outcome.COLLISION_WITH_CLUTTER, phase)
+
+            check_approach("placement")
+            # 2. approach
+            self._move(pre + self._approach_s[:, None] * z_axis, None, "approach", check_approach, observer)
+            # 3. closing
+            self._ctrl[self._act] = self.min_width
+            tol = p.close_speed_tol * p.check_interval * self._dt  # width change per check interval
+            last = [self._width()]
+
+            def check_closing(phase: str) -> None:
+                w = self._width()
+                if abs(w - last[0]) < tol:
+                    raise _JawsStopped
+                last[0] = w
+
+            try:
+                self._wait(self._close_max_steps, "closing", check_closing, observer)
+            except _JawsStopped:
+                pass
+            closed_width = self._width()
+            contacts = self._jaw_contacts(roles)
+            if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
+                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
+            self._gravity_view[:] = self._gravity
+            # 4. lift, hold, shake
+            rel_p0, rel_R0 = self._relative(target)
+            z_obj0 = float(self._xipos[target][2])
+
+            def check_slip(phase: str) -> None:
+                if self._slipped(target, rel_p0, rel_R0):
+                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
+
+            self._move(pos + self._lift_offsets, None, "lifting", check_slip, observer)
+            self._wait(self._hold_steps, "holding", check_slip, observer)
+            if p.shake:
+                top = pos + self._lift_offsets[-1]
+                shake_pos = np.repeat(top[None], len(self._shake_z), axis=0)
+                shake_pos[:, 2] += self._shake_z
+                self._move(shake_pos, None, "shaking", check_slip, observer)
+                self._move(np.repeat(top[None], len(self._shake_qx), axis=0), _quat_mul(quat, self._shake_qx),
+                           "shaking", check_slip, observer)
+            lift_gain = float(self._xipos[target][2]) - z_obj0
+            if lift_gain < p.min_lift_fraction * p.lift_height:
+                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
+            code, phase = Outcome.SUCCESS, "end"
+        except _Decided as decided:
+            code, phase = Outcome(decided.code), decided.phase
+        finally:
+            self._gravity_view[:] = self._gravity
+        if code >= Outcome.SLIPPED_DURING_LIFTING:
+            rel_p, rel_R = self._relative(target)
+            rel_t = math.sqrt(float((rel_p - rel_p0) @ (rel_p - rel_p0)))
+            rel_r = _angle(rel_R0, rel_R)
+            lift_gain = float(self._xipos[target][2]) - z_obj0
+        return RolloutResult(
+            code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
+            sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=lift_gain,
+            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
+            contact_forces=contacts[2], contact_fingers=contacts[3])
