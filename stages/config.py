@@ -6,6 +6,9 @@ import dataclasses
 
 from pipeline.config import RunConfig
 from stages.objects import ObjectsParams
+from stages.grasps import GraspsParams
+from stages.rollouts import RolloutsParams
+from stages.scenes import ScenesParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -16,3 +19,9 @@ class Config:
     """Where and how to run (output folder, workers, backend). Never enters a content key."""
     objects: ObjectsParams = dataclasses.field(default_factory=ObjectsParams)
     """Stage 1: mesh preparation."""
+    scenes: ScenesParams = dataclasses.field(default_factory=ScenesParams)
+    """Stage 2: random settled scenes on a support, with rendered camera views."""
+    grasps: GraspsParams = dataclasses.field(default_factory=GraspsParams)
+    """Stage 3: antipodal grasp candidates with a collision pre-filter."""
+    rollouts: RolloutsParams = dataclasses.field(default_factory=RolloutsParams)
+    """Stage 4: grasp-and-lift in MuJoCo, outcome codes 0-5."""
