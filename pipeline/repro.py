@@ -6,7 +6,8 @@ Runs a pipeline's CLI three ways into separate folders and compares every stage 
 1. ``--jobs 1`` with a cold cache (the reference);
 2. ``--jobs 2`` with a warm cache;
 3. ``--jobs 2``, killed with SIGKILL (whole process group, workers included) as soon as the first shard is
-   committed, then run again to the end.
+   committed, started again and killed again half-way and near the end (so later stages are interrupted too),
+   then run to the end.
 
 Usage::
 
@@ -54,15 +55,21 @@ def _run(cmd: list[str], config: str, out: Path, cache: Path, jobs: int) -> None
         raise SystemExit(f"repro: run into {out} failed with exit code {proc.returncode}")
 
 
-def _run_and_kill(cmd: list[str], config: str, out: Path, cache: Path, jobs: int, timeout: float = 600) -> int:
-    """Start a run, SIGKILL its process group once the first shard is committed; return manifest lines then."""
+def _committed_lines(out: Path) -> int:
+    return sum(len(m.read_text().splitlines()) for m in out.glob(f"*/{MANIFEST}"))
+
+
+def _run_and_kill(
+    cmd: list[str], config: str, out: Path, cache: Path, jobs: int, after: int, timeout: float = 600
+) -> int:
+    """Start a run, SIGKILL its process group once ``after`` manifest lines exist; return the count then."""
     args = [*cmd, "run", "--config", config, "--out", str(out), "--jobs", str(jobs), "--set", f"run.cache_dir={cache}"]
-    print("$", " ".join(args), " # killed with SIGKILL after the first committed shard", flush=True)
+    print("$", " ".join(args), f" # killed with SIGKILL at {after} committed shard(s)", flush=True)
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        lines = sum(len(m.read_text().splitlines()) for m in out.glob(f"*/{MANIFEST}"))
-        if lines >= 1:
+        lines = _committed_lines(out)
+        if lines >= after:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
             return lines
@@ -90,16 +97,18 @@ def main(argv: list[str] | None = None) -> int:
     t1 = time.perf_counter()
     _run(opts.cmd, opts.config, work / "jobs2", cache, 2)
     t2 = time.perf_counter()
-    committed = _run_and_kill(opts.cmd, opts.config, work / "killed", work / "cache-killed", 2)
-    partial = shard_hashes(work / "killed")
+    ref = shard_hashes(work / "jobs1")
+    kills = []
+    for after in sorted({1, len(ref) // 2, len(ref) - 1}):
+        if after > _committed_lines(work / "killed"):
+            kills.append(_run_and_kill(opts.cmd, opts.config, work / "killed", work / "cache-killed", 2, after))
     _run(opts.cmd, opts.config, work / "killed", work / "cache-killed", 2)
     t3 = time.perf_counter()
 
-    ref = shard_hashes(work / "jobs1")
     runs = {"jobs2": shard_hashes(work / "jobs2"), "killed+resumed": shard_hashes(work / "killed")}
     print(f"reference (--jobs 1, cold cache): {len(ref)} shards in {t1 - t0:.1f} s")
     print(f"--jobs 2, warm cache: {t2 - t1:.1f} s")
-    print(f"killed after {committed} committed manifest line(s) ({len(partial)} shard(s)), resumed: {t3 - t2:.1f} s")
+    print(f"killed {len(kills)} times, at {kills} committed shard(s), then resumed: {t3 - t2:.1f} s")
     ok = bool(ref)
     for name, hashes in runs.items():
         diff = sorted(k for k in set(ref) | set(hashes) if ref.get(k) != hashes.get(k))
