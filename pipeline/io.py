@@ -64,7 +64,7 @@ def _write_dataset(group: h5py.Group, name: str, value: Any) -> None:
     if isinstance(value, str):
         group.create_dataset(name, data=value, dtype=h5py.string_dtype(), track_times=False)
         return
-    arr = np.ascontiguousarray(value)
+    arr = np.require(value, requirements="C")  # unlike ascontiguousarray, keeps a 0-d scalar 0-d
     if arr.dtype.kind in "OUS":
         raise TypeError(f"{name}: store strings as str scalars or attributes, not arrays of {arr.dtype}")
     kwargs: dict[str, Any] = {"track_times": False}

@@ -87,6 +87,11 @@ def upstream_view(out: Path, stage: Stage, current: dict[str, set[str]], *, veri
     return Upstream(out, entries)
 
 
+def view_entries(view: Upstream, stage: str) -> dict[str, Entry]:
+    """``{task_id: Entry}`` of one stage in an upstream view."""
+    return {tid: view.entry(stage, tid) for tid in view.ids(stage)}
+
+
 def plan(stage: Stage, params: Any, upstream: Upstream) -> list[PlannedTask]:
     """The stage's tasks with their content keys."""
     tasks = stage.tasks(params, upstream)
@@ -309,6 +314,10 @@ def _run_stage(
                 report.failed += 1
                 report.failures.append((entry.task, entry.error or "failed"))
             notify("task_done", stage=stage.name, task=entry.task, ok=entry.status == "ok")
+    if type(stage).publish is not Stage.publish:
+        view = upstream_view(out, stage, current)
+        own = {e.task: e for k, e in committed(out, stage.name).items() if k in {p.key for p in planned}}
+        stage.publish(params, Upstream(out, {**{d: view_entries(view, d) for d in stage.inputs}, stage.name: own}), out)
     report.seconds = time.perf_counter() - start
     report.failures.sort()
     notify("stage_end", stage=stage.name, report=report)

@@ -138,6 +138,15 @@ class Stage(abc.ABC):
         message should name the input at fault.
         """
 
+    def publish(self, params: Any, shards: Upstream, dest: Path) -> None:
+        """Optional: lay out this stage's committed shards for people somewhere under ``dest`` (the run's output
+        folder). Runs in the parent process after the stage's tasks are committed, on every run, so it must be
+        cheap, idempotent and write files atomically; it only reads shards, so it cannot change any key.
+
+        ``shards`` is an :class:`Upstream` view holding this stage's own current shards plus its inputs' (by stage
+        name). The default does nothing.
+        """
+
 
 def topological_order(stages: Sequence[Stage], targets: Sequence[str] | None = None) -> list[Stage]:
     """Stages in dependency order, restricted to ``targets`` and everything they need (all when None)."""

@@ -152,3 +152,15 @@ def test_dask_backend_gives_the_same_bytes(tmp_path):
     run_pipeline(TOY, config(tmp_path / "a", "run.jobs=1"))
     run_pipeline(TOY, config(tmp_path / "d", "run.jobs=2", "run.backend=dask"))
     assert shard_hashes(tmp_path / "a") == shard_hashes(tmp_path / "d")
+
+
+def test_publish_runs_after_the_stage_with_its_current_shards(tmp_path):
+    from pipeline.io import read_h5
+
+    out = tmp_path / "o"
+    run_pipeline(TOY, config(out, "run.jobs=1", "sums.scale=2"))
+    (entry,) = Manifest(out / "sums").entries().values()
+    total = float(read_h5(out / "sums" / entry.file)["total"])
+    assert (out / "published" / "total.txt").read_text() == f"{total!r} from 4 shards\n"
+    run_pipeline(TOY, config(out, "run.jobs=1", "sums.scale=3"))
+    assert (out / "published" / "total.txt").read_text() == f"{total / 2 * 3!r} from 4 shards\n"

@@ -76,5 +76,10 @@ class SumsStage(Stage):
         write_h5(out, {"total": np.float64(total * params.scale)})
         return {"inputs": len(upstream.ids("numbers"))}
 
+    def publish(self, params, shards: Upstream, dest: Path) -> None:
+        total = float(read_h5(shards.path("sums", "total"))["total"])
+        (dest / "published").mkdir(exist_ok=True)
+        (dest / "published" / "total.txt").write_text(f"{total!r} from {len(shards.ids('numbers'))} shards\n")
+
 
 TOY = Project(name="toy", schema=ToyConfig, stages=(SumsStage(), NumbersStage()))
