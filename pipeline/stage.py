@@ -138,7 +138,7 @@ class Stage(abc.ABC):
         message should name the input at fault.
         """
 
-    def publish(self, params: Any, shards: Upstream, dest: Path) -> None:
+    def publish(self, params: Any, shards: Upstream, dest: Path) -> None:  # noqa: B027 - optional hook
         """Optional: lay out this stage's committed shards for people somewhere under ``dest`` (the run's output
         folder). Runs in the parent process after the stage's tasks are committed, on every run, so it must be
         cheap, idempotent and write files atomically; it only reads shards, so it cannot change any key.
