@@ -23,10 +23,10 @@ Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
      opened to ``width + width_margin`` before it approaches (width adaptation: no wider than needed, so the open
      fingers fit between neighbours) and closes from there, so that opening must be reachable.
 
-5. **Orientations.** The TCP frame sits at the midpoint of ``p1, p2`` with ``x = (p2 - p1) / width`` (``p1`` is
-   the *left* pad's contact, on -x; ``p2`` the *right* pad's, on +x: :mod:`stages.grippers`). ``num_orientations``
-   approach axes ``z`` perpendicular to ``x`` are evenly spaced about ``x``, starting at a random phase (one per
-   ray, from ``rng``); ``y = z x x``, so ``[x y z]`` is a proper rotation.
+5. **Orientations.** The TCP frame has ``x = (p2 - p1) / width`` (``p1`` is the *left* pad's contact, on -x;
+   ``p2`` the *right* pad's, on +x: :mod:`stages.grippers`). ``num_orientations`` approach axes ``z`` perpendicular
+   to ``x`` are evenly spaced about ``x``, starting at a random phase (one per ray, from ``rng``); ``y = z x x``, so
+   ``[x y z]`` is a proper rotation.
 6. **Approach filter** on the world-frame approach axis ``z_w = R_object z`` (``object_pose`` places the object):
    the approach angle is the angle between ``z_w`` and straight down ``(0, 0, -1)``, in ``[0, pi]``.
 
@@ -36,8 +36,18 @@ Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
      side grasps up to but excluding horizontal; ``max_approach_angle`` is not used);
    - ``"any"``: keep everything (collisions with the support are the pre-filter's business).
 
+7. **Grasp depths.** Each kept orientation gives ``num_depths`` candidates that differ only in how far the TCP sits
+   behind the contact line: ``origin = (p1 + p2) / 2 - d z`` for ``d`` in :func:`grasp_depths` (evenly spaced from
+   0 to ``pad_length / 2 - depth_margin``). The TCP is the pads' centre (DESIGN section 4), so in the TCP frame the
+   contacts lie at ``(-+width / 2, 0, d)``: on the pad faces, ``d`` towards the finger tips, and the tips reach only
+   ``pad_length / 2 - d`` past the contacts. Why: with ``d = 0`` the 2F-85's pads (37.5 mm) reach ~19 mm past the
+   contacts along the approach, so on low objects (a lying box, a 35 mm wedge) most downward grasps put the finger
+   tips into the table; a TCP set further back keeps them above it, as real planners vary the grasp depth. Depths
+   are deterministic (no random draws): ``num_depths = 1`` reproduces the contact-centred TCP exactly.
+
 Every kept candidate satisfies: both contacts on the surface, ``max(min_width, surface_offset) <= width <=
-max_width - width_margin``, the contact line inside both friction cones.
+max_width - width_margin``, the contact line inside both friction cones, and both contacts on the pad faces
+(``|z| <= pad_length / 2 - depth_margin`` in the TCP frame; ``y = 0``).
 
 Speed: one ray per candidate pair, cast with ``mesh.ray.intersects_first``; everything else is vectorised numpy.
 With ``embreex`` installed ``mesh.ray`` is trimesh's Embree intersector (~4M rays/s); without it trimesh falls back
@@ -61,6 +71,7 @@ __all__ = [
     "RejectCounts",
     "AntipodalCandidates",
     "sample_antipodal",
+    "grasp_depths",
     "uses_embree",
 ]
 
@@ -152,6 +163,18 @@ class AntipodalParams:
     """How far (m, > 0) inside the surface each ray starts, so that it does not hit its own face again. Far above
     Embree's float32 resolution at object scale (~1e-8 m for a 0.1 m object), far below any wall thickness. Widths
     below it are rejected as too small."""
+    num_depths: int = 3
+    """Grasp depths per oriented contact pair (step 7 of the module docstring): the TCP is set back along the
+    approach axis by ``num_depths`` offsets evenly spaced in ``[0, pad_length / 2 - depth_margin]`` (1: only 0, the
+    TCP at the contacts' midpoint). Default 3: for the 2F-85 (37.5 mm pads) 0, 6.9 and 13.75 mm, i.e. the finger
+    tips reach 18.75, 11.9 and 5 mm past the contacts; every depth keeps both contacts on the pad faces. Measured
+    (smoke config, 3 scenes x 10 seeds, 1440 grasps, paired): 1 -> 3 depths raises the pre-filter's free share from
+    11.8 % to 19.2 % (ground collisions 50.5 % -> 44.5 %) and successes from 168 to 265; 2, 4 or 5 depths give the
+    same within noise. Per depth, the free share grows from 14 % (d = 0) to 35 % (contacts at the tips)."""
+    depth_margin: float = 0.005
+    """Smallest distance (m, >= 0) between the contact line and the pad tips at the largest depth, so the pads
+    still cover the contact with some face to spare: measured, free grasps succeed ~95 % of the time up to 9 mm
+    depth, 92-95 % at 14 mm (5 mm margin) and 89-92 % with the contacts on the pad tips (0 margin)."""
 
     def __post_init__(self) -> None:
         _check_positive_int("num_surface_points", self.num_surface_points)
@@ -164,6 +187,8 @@ class AntipodalParams:
                       high_open=True)
         _check_number("width_margin", self.width_margin, low=0.0)
         _check_number("surface_offset", self.surface_offset, low=0.0, low_open=True)
+        _check_positive_int("num_depths", self.num_depths)
+        _check_number("depth_margin", self.depth_margin, low=0.0)
 
     @property
     def cone_half_angle(self) -> float:
@@ -176,8 +201,8 @@ class RejectCounts:
     """Why sampled rays and oriented candidates were dropped, for one call of :func:`sample_antipodal`.
 
     Every ray is counted exactly once: ``rays = no_exit + outside_cone + width_too_small + width_too_large +
-    pairs``; every accepted pair gives ``num_orientations`` oriented candidates: ``pairs * num_orientations =
-    approach + kept``.
+    pairs``; every accepted pair gives ``num_orientations * num_depths`` candidates: ``pairs * num_orientations *
+    num_depths = approach + kept``.
     """
 
     rays: int
@@ -194,7 +219,8 @@ class RejectCounts:
     pairs: int
     """Rays that passed every check: accepted contact pairs."""
     approach: int
-    """Oriented candidates (pairs x orientations) dropped by the approach filter."""
+    """Candidates (pairs x orientations x depths) dropped by the approach filter (it drops all depths of an
+    orientation together)."""
     kept: int
     """Oriented candidates kept: the length of the :class:`AntipodalCandidates`."""
 
@@ -213,8 +239,8 @@ def _frozen(array: np.ndarray) -> np.ndarray:
 class AntipodalCandidates:
     """``n`` antipodal grasp candidates on one object. Arrays are read-only; row ``i`` of each is candidate ``i``.
 
-    Candidates come in runs of at most ``num_orientations`` that share a contact pair (same ``ray_index``), in
-    increasing ``ray_index`` order.
+    Candidates come in runs of at most ``num_orientations * num_depths`` that share a contact pair (same
+    ``ray_index``), in increasing ``ray_index`` order; within a run, by orientation, then by increasing ``depth``.
     """
 
     p1: np.ndarray
@@ -234,12 +260,15 @@ class AntipodalCandidates:
     width: np.ndarray
     """``(n,) float64`` pad separation at contact ``|p2 - p1|`` (m)."""
     pose_object: np.ndarray
-    """``(n, 4, 4) float64`` TCP pose in the object frame (origin at the midpoint, x along ``p2 - p1``, z the
-    approach axis)."""
+    """``(n, 4, 4) float64`` TCP pose in the object frame (origin ``depth`` behind the contacts' midpoint along
+    -z, x along ``p2 - p1``, z the approach axis)."""
     pose_world: np.ndarray
     """``(n, 4, 4) float64`` TCP pose in the world frame: ``object_pose @ pose_object``."""
     approach_angle: np.ndarray
     """``(n,) float64`` angle (rad, [0, pi]) between the world-frame approach axis and straight down."""
+    depth: np.ndarray
+    """``(n,) float64`` grasp depth (m, >= 0): how far the contact line lies ahead of the TCP along its z axis (the
+    contacts are at ``(-+width / 2, 0, depth)`` in the TCP frame)."""
     ray_index: np.ndarray
     """``(n,) int64`` which ray (``point * rays_per_point + k``) gave the contact pair."""
     object_pose: np.ndarray
@@ -300,6 +329,27 @@ def _cone_directions(axis: np.ndarray, per_axis: int, cos_max: float, rng: np.ra
     return cos_t[..., None] * axis[:, None, :] + sin_t[..., None] * lateral
 
 
+def grasp_depths(gripper: GripperSpec, params: AntipodalParams) -> np.ndarray:
+    """The grasp depths (m) of every oriented contact pair: ``(num_depths,) float64``, increasing.
+
+    ``num_depths`` values evenly spaced from 0 (TCP at the contacts' midpoint) to ``pad_length / 2 -
+    depth_margin`` (contacts ``depth_margin`` from the pad tips), ``pad_length = gripper.pad_size[2]``; just
+    ``[0]`` for one depth.
+
+    Raises
+    ------
+    ValueError
+        ``num_depths > 1`` while ``depth_margin`` leaves no room on the gripper's pads (``>= pad_length / 2``).
+    """
+    if params.num_depths == 1:
+        return np.zeros(1)
+    deepest = gripper.pad_size[2] / 2.0 - params.depth_margin
+    if not deepest > 0.0:
+        raise ValueError(f"params.depth_margin: {params.depth_margin} m leaves no depth range on the pads of gripper "
+                         f"{gripper.name!r} (pad length {gripper.pad_size[2]} m); use num_depths 1 or a smaller margin")
+    return np.linspace(0.0, deepest, params.num_depths)
+
+
 def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: AntipodalParams,
                      rng: np.random.Generator, *, object_pose=None) -> AntipodalCandidates:
     """Antipodal grasp candidates on ``mesh`` for ``gripper`` (see the module docstring for the algorithm).
@@ -330,7 +380,8 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     Raises
     ------
     ValueError
-        A wrong argument type/shape, or ``params.width_margin`` leaving no usable opening for ``gripper``.
+        A wrong argument type/shape, ``params.width_margin`` leaving no usable opening for ``gripper``, or
+        ``params.depth_margin`` no depth range on its pads.
     """
     _check_mesh(mesh)
     if not isinstance(gripper, GripperSpec):
@@ -344,6 +395,7 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     if max_width < min_width:
         raise ValueError(f"params.width_margin: {params.width_margin} m leaves no opening for gripper "
                          f"{gripper.name!r} (max_width {gripper.max_width} m)")
+    depths = grasp_depths(gripper, params)
     if not uses_embree(mesh):
         warnings.warn("trimesh has no Embree ray intersector (install embreex): antipodal sampling will be ~1000x "
                       "slower", RuntimeWarning, stacklevel=2)
@@ -410,13 +462,18 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     else:
         keep = np.ones(z_world_z.shape, dtype=bool)
     pair, orient = np.nonzero(keep)  # row-major: by ray, then by orientation
+    # --- depths: each kept orientation repeated num_depths times (innermost), the TCP set back along -z ----------
+    n_depth = len(depths)
+    pair, orient = np.repeat(pair, n_depth), np.repeat(orient, n_depth)
+    depth = np.tile(depths, len(pair) // n_depth)
     cos_k, sin_k = cos_t[pair, orient, None], sin_t[pair, orient, None]
     a_k, b_k = a[pair], b[pair]
+    z_k = cos_k * a_k + sin_k * b_k
     pose_obj = np.zeros((len(pair), 4, 4))
     pose_obj[:, :3, 0] = x[pair]
     pose_obj[:, :3, 1] = sin_k * a_k - cos_k * b_k
-    pose_obj[:, :3, 2] = cos_k * a_k + sin_k * b_k
-    pose_obj[:, :3, 3] = mid[pair]
+    pose_obj[:, :3, 2] = z_k
+    pose_obj[:, :3, 3] = mid[pair] - depth[:, None] * z_k
     pose_obj[:, 3, 3] = 1.0
     pose_world = np.matmul(T_world, pose_obj)
     approach_angle = approach_angle[pair, orient]
@@ -428,7 +485,7 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
         width_too_small=int(np.count_nonzero(fail_small)),
         width_too_large=int(np.count_nonzero(fail_large)),
         pairs=int(len(keep_rays)),
-        approach=int(keep.size - len(pair)),
+        approach=int((keep.size - np.count_nonzero(keep)) * n_depth),
         kept=int(len(rows)),
     )
     return AntipodalCandidates(
@@ -442,6 +499,7 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
         pose_object=_frozen(pose_obj),
         pose_world=_frozen(pose_world),
         approach_angle=_frozen(approach_angle),
+        depth=_frozen(depth),
         ray_index=_frozen(rows.astype(np.int64)),
         object_pose=_frozen(T_world.copy()),
         rejected=counts,

@@ -68,7 +68,8 @@ def _off_face(mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray) -> f
 @pytest.mark.parametrize("key, value", [
     ("num_surface_points", 0), ("num_surface_points", 2.5), ("rays_per_point", -1), ("friction", 0.0),
     ("friction", float("nan")), ("num_orientations", 0), ("approach", "below"), ("max_approach_angle", 0.0),
-    ("max_approach_angle", math.pi / 2), ("width_margin", -0.001), ("surface_offset", 0.0),
+    ("max_approach_angle", math.pi / 2), ("width_margin", -0.001), ("surface_offset", 0.0), ("num_depths", 0),
+    ("num_depths", 1.0), ("depth_margin", -0.001), ("depth_margin", float("inf")),
 ])
 def test_params_reject_bad_values_naming_the_key(key, value):
     with pytest.raises(ValueError, match=f"^{key}: "):
@@ -95,6 +96,8 @@ def test_bad_arguments_raise_value_error():
         A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(), rng, object_pose=np.diag([1.0, 1.0, -1.0, 1.0]))
     with pytest.raises(ValueError, match="width_margin"):
         A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(width_margin=0.1), rng)
+    with pytest.raises(ValueError, match="depth_margin"):
+        A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(depth_margin=0.02), rng)  # 2F-85 pads: 37.5 mm
 
 
 def test_meshes_use_the_embree_intersector():
@@ -206,33 +209,89 @@ def test_open_mesh_rays_through_the_hole_are_no_exit():
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def test_tcp_frame_is_right_handed_with_x_along_the_contact_line_and_origin_at_the_midpoint():
+def test_tcp_frame_is_right_handed_with_x_along_the_contact_line_and_origin_behind_the_midpoint():
     pose = _random_pose(3)
-    c = _sample(_sphere(), A.AntipodalParams(num_surface_points=100, approach="any"), object_pose=pose)
+    params = A.AntipodalParams(num_surface_points=100, approach="any")
+    c = _sample(_sphere(), params, object_pose=pose)
     R = c.pose_object[:, :3, :3]
     np.testing.assert_allclose(np.matmul(np.swapaxes(R, 1, 2), R), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(R), 1.0, atol=1e-12)
     x, y, z = R[:, :, 0], R[:, :, 1], R[:, :, 2]
     np.testing.assert_allclose(x, (c.p2 - c.p1) / c.width[:, None], atol=1e-12)
     np.testing.assert_allclose(y, np.cross(z, x), atol=1e-12)
-    np.testing.assert_allclose(c.pose_object[:, :3, 3], (c.p1 + c.p2) / 2, atol=1e-15)
+    # The TCP sits `depth` behind the contacts' midpoint along the approach axis.
+    np.testing.assert_allclose(c.pose_object[:, :3, 3], (c.p1 + c.p2) / 2 - c.depth[:, None] * z, atol=1e-15)
     np.testing.assert_array_equal(c.pose_object[:, 3], np.broadcast_to([0.0, 0.0, 0.0, 1.0], (len(c), 4)))
     np.testing.assert_allclose(c.pose_world, np.matmul(pose, c.pose_object), atol=1e-15)
     np.testing.assert_array_equal(c.object_pose, pose)
     np.testing.assert_allclose(np.linalg.norm(c.n1, axis=1), 1.0)
     np.testing.assert_allclose(np.linalg.norm(c.n2, axis=1), 1.0)
-    # The left pad's contact p1 is on the TCP's -x side, the right pad's p2 on +x, each at width / 2.
+    # The left pad's contact p1 is on the TCP's -x side, the right pad's p2 on +x, each at width / 2, depth ahead.
     local1 = np.einsum("nji,nj->ni", R, c.p1 - c.pose_object[:, :3, 3])
-    np.testing.assert_allclose(local1, np.stack([-c.width / 2, 0 * c.width, 0 * c.width], axis=1), atol=1e-12)
+    np.testing.assert_allclose(local1, np.stack([-c.width / 2, 0 * c.width, c.depth], axis=1), atol=1e-12)
+    local2 = np.einsum("nji,nj->ni", R, c.p2 - c.pose_object[:, :3, 3])
+    np.testing.assert_allclose(local2, np.stack([c.width / 2, 0 * c.width, c.depth], axis=1), atol=1e-12)
+
+
+def test_one_depth_puts_the_tcp_at_the_midpoint_and_depths_do_not_touch_the_rng_stream():
+    mesh = load_mesh(ASSETS / "mug.obj")
+    one = _sample(mesh, A.AntipodalParams(num_surface_points=150, num_depths=1), seed=5)
+    three = _sample(mesh, A.AntipodalParams(num_surface_points=150, num_depths=3), seed=5)
+    np.testing.assert_array_equal(one.depth, 0.0)
+    np.testing.assert_allclose(one.pose_object[:, :3, 3], (one.p1 + one.p2) / 2, atol=1e-15)
+    # Same draws: the 3-depth set is the 1-depth set with each candidate repeated at 3 depths (depth innermost).
+    assert len(three) == 3 * len(one)
+    for name in ("p1", "p2", "n1", "n2", "face1", "face2", "width", "approach_angle", "ray_index"):
+        np.testing.assert_array_equal(getattr(three, name), np.repeat(getattr(one, name), 3, axis=0), err_msg=name)
+    np.testing.assert_array_equal(three.pose_object[:, :3, :3], np.repeat(one.pose_object[:, :3, :3], 3, axis=0))
+    np.testing.assert_array_equal(three.depth, np.tile(A.grasp_depths(GRIPPER, A.AntipodalParams()), len(one)))
+
+
+@pytest.mark.parametrize("gripper_name", ["robotiq_2f85", "panda", "box_jaw"])
+def test_grasp_depths_span_zero_to_the_pad_tip_less_the_margin(gripper_name):
+    gripper = get_gripper(gripper_name)
+    half = gripper.pad_size[2] / 2
+    np.testing.assert_array_equal(A.grasp_depths(gripper, A.AntipodalParams(num_depths=1)), [0.0])
+    d = A.grasp_depths(gripper, A.AntipodalParams(num_depths=4, depth_margin=0.004))
+    np.testing.assert_allclose(d, np.linspace(0.0, half - 0.004, 4))
+    with pytest.raises(ValueError, match="^params.depth_margin: "):
+        A.grasp_depths(gripper, A.AntipodalParams(num_depths=2, depth_margin=half))
+    # One depth never needs room on the pads.
+    np.testing.assert_array_equal(A.grasp_depths(gripper, A.AntipodalParams(num_depths=1, depth_margin=1.0)), [0.0])
+
+
+@pytest.mark.parametrize("gripper_name", ["robotiq_2f85", "panda", "box_jaw"])
+@pytest.mark.parametrize("num_depths, margin", [(1, 0.005), (3, 0.005), (5, 0.0)])
+def test_contacts_lie_on_the_pad_faces_in_the_tcp_frame(gripper_name, num_depths, margin):
+    """Each contact, in the TCP frame, lies on its pad's contact face: x = -+width / 2 (the pad's inner face when
+    the jaws have closed to ``width``), |y| <= pad width / 2, |z| <= pad length / 2 - depth_margin."""
+    gripper = get_gripper(gripper_name)
+    _, pad_w, pad_l = gripper.pad_size
+    params = A.AntipodalParams(num_surface_points=200, num_depths=num_depths, depth_margin=margin, approach="any")
+    for mesh in (_box(), load_mesh(ASSETS / "mug.obj")):
+        c = _sample(mesh, params, gripper=gripper, object_pose=_random_pose(1))
+        assert len(c) > 0
+        T = c.pose_world  # in the world frame, as the rollout places the gripper
+        R, t = T[:, :3, :3], T[:, :3, 3]
+        for p, sign in ((c.p1, -1.0), (c.p2, 1.0)):
+            world = p @ c.object_pose[:3, :3].T + c.object_pose[:3, 3]
+            local = np.einsum("nji,nj->ni", R, world - t)
+            np.testing.assert_allclose(local[:, 0], sign * c.width / 2, atol=1e-12)
+            assert np.abs(local[:, 1]).max() <= pad_w / 2
+            assert np.abs(local[:, 2]).max() <= pad_l / 2 - margin + 1e-12
+        np.testing.assert_allclose(np.unique(c.depth), A.grasp_depths(gripper, params), atol=1e-15)
+    # The deepest-set TCP leaves exactly `margin` of pad past the contacts (finger tips flush with the pads).
+    if num_depths > 1:
+        assert c.depth.max() == pytest.approx(pad_l / 2 - margin)
 
 
 def test_orientations_are_evenly_spaced_about_the_contact_axis():
-    k = 6
-    c = _sample(_box(), A.AntipodalParams(num_surface_points=50, num_orientations=k, approach="any"))
+    k, d = 6, 2
+    c = _sample(_box(), A.AntipodalParams(num_surface_points=50, num_orientations=k, num_depths=d, approach="any"))
     _, first, counts = np.unique(c.ray_index, return_index=True, return_counts=True)
-    assert np.all(counts == k)
+    assert np.all(counts == k * d)
     for start in first[:20]:
-        z = c.pose_object[start:start + k, :3, 2]
+        z = c.pose_object[start:start + k * d:d, :3, 2]  # one per orientation (depths are innermost)
         x = c.pose_object[start, :3, 0]
         angles = np.arctan2(np.cross(z[0], z) @ x, z @ z[0])
         np.testing.assert_allclose(np.mod(angles, 2 * np.pi), 2 * np.pi / k * np.arange(k), atol=1e-9)
@@ -271,13 +330,14 @@ def test_hemisphere_and_any_filters():
 
 
 def test_reject_counts_add_up():
-    params = A.AntipodalParams(num_surface_points=300, rays_per_point=3, num_orientations=5, approach="above")
+    params = A.AntipodalParams(num_surface_points=300, rays_per_point=3, num_orientations=5, num_depths=3,
+                               approach="above")
     for mesh in (_box(), _sphere(), load_mesh(ASSETS / "mug.obj")):
         c = _sample(mesh, params)
         r = c.rejected
         assert r.rays == 300 * 3
         assert r.rays == r.no_exit + r.outside_cone + r.width_too_small + r.width_too_large + r.pairs
-        assert r.pairs * 5 == r.approach + r.kept
+        assert r.pairs * 5 * 3 == r.approach + r.kept
         assert r.kept == len(c) == len(c.ray_index)
         assert set(r.as_dict()) == {"rays", "no_exit", "outside_cone", "width_too_small", "width_too_large",
                                     "pairs", "approach", "kept"}
@@ -302,7 +362,7 @@ def test_output_arrays_are_read_only_and_shaped():
     n = len(c)
     shapes = {"p1": (n, 3), "p2": (n, 3), "n1": (n, 3), "n2": (n, 3), "face1": (n,), "face2": (n,), "width": (n,),
               "pose_object": (n, 4, 4), "pose_world": (n, 4, 4), "approach_angle": (n,), "ray_index": (n,),
-              "object_pose": (4, 4)}
+              "depth": (n,), "object_pose": (4, 4)}
     for name in ARRAY_FIELDS:
         arr = getattr(c, name)
         assert arr.shape == shapes[name], name
