@@ -20,12 +20,27 @@ from pipeline.scheduler import Project, committed, plan, upstream_view  # noqa: 
 from pipeline.stage import topological_order  # noqa: E402
 from pipeline.store import Manifest  # noqa: E402
 from stages.config import Config  # noqa: E402
+from stages.dataset import DatasetStage  # noqa: E402
 from stages.objects import ObjectsStage  # noqa: E402
 from stages.grasps import GraspsStage  # noqa: E402
+from stages.metrics import MetricsStage  # noqa: E402
+from stages.robustness import RobustnessStage  # noqa: E402
 from stages.rollouts import RolloutsStage  # noqa: E402
 from stages.scenes import ScenesStage  # noqa: E402
 
-PROJECT = Project(name="gen", schema=Config, stages=(ObjectsStage(), ScenesStage(), GraspsStage(), RolloutsStage()))
+PROJECT = Project(
+    name="gen",
+    schema=Config,
+    stages=(
+        ObjectsStage(),
+        ScenesStage(),
+        GraspsStage(),
+        RolloutsStage(),
+        RobustnessStage(),
+        MetricsStage(),
+        DatasetStage(tables=("grasps", "rollouts", "robustness", "metrics")),
+    ),
+)
 """The stages in their declared order; the scheduler sorts them by dependency."""
 
 app = build_app(PROJECT)
@@ -97,6 +112,261 @@ def show_scene(
     output.parent.mkdir(parents=True, exist_ok=True)
     sheet.save(output)
     print(output)
+
+
+@show_app.command("grasps")
+def show_grasps(
+    scene_id: Annotated[str, typer.Argument(help="Scene task id, e.g. scene_000000.")],
+    num: Annotated[
+        int, typer.Option("--num", "-n", help="At most this many grasps, spread over the labels.", min=0)
+    ] = 30,
+    view: Annotated[int, typer.Option("--view", "-v", help="Camera view to draw on.")] = 0,
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="PNG path (default: OUT/show/<scene>_grasps_view<k>.png).")
+    ] = None,
+    scale: Annotated[int, typer.Option("--scale", help="Upscaling of the rendered view.", min=1, max=8)] = 3,
+    config: ConfigOpt = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Output folder of the run (overrides run.out).")] = None,
+    set_: SetOpt = None,
+) -> None:
+    """Draw a scene's grasps on one of its camera views as gripper markers (PNG), coloured by rollout outcome when
+    the scene was rolled out, else by the collision pre-filter; print the PNG's path."""
+    import pyarrow.parquet as pq
+
+    from stages.grasp_view import grasp_picture, rollouts_match
+    from stages.scenes import read_scene
+
+    console = Console(stderr=True)
+    notes = []
+    try:
+        cfg = load(PROJECT, config, set_, out=out)
+        scene_path, current = find_shard(PROJECT, cfg, "scenes", scene_id)
+        grasps_path, grasps_current = find_shard(PROJECT, cfg, "grasps", scene_id)
+        grasps = pq.read_table(grasps_path)
+        try:
+            rollouts_path, rollouts_current = find_shard(PROJECT, cfg, "rollouts", scene_id)
+            rollouts = pq.read_table(rollouts_path)
+        except StageError:
+            rollouts, rollouts_current = None, False  # not rolled out (yet): colour by the pre-filter
+        # A rollouts shard of another config than the grasps shard labels other grasps: do not mix them.
+        if rollouts is not None and (rollouts_current != grasps_current or not rollouts_match(grasps, rollouts)):
+            notes.append(f"the rollouts of {scene_id} do not belong to its grasps shard: colouring by the pre-filter")
+            rollouts = None
+        if not (current and grasps_current):
+            notes.append(f"{scene_id} is from an earlier config (its key differs from the current one)")
+        picture = grasp_picture(read_scene(scene_path), grasps, rollouts, view=view, n=num, scale=scale)
+    except (GenError, ValueError) as exc:
+        fail(console, str(exc))
+    for note in notes:
+        console.print(f"note: {note}", highlight=False)
+    if output is None:
+        output = Path(cfg.run.out) / "show" / f"{scene_id}_grasps_view{view}.png"
+    output.parent.mkdir(parents=True, exist_ok=True)
+    picture.save(output)
+    print(output)
+
+
+@show_app.command("rollout")
+def show_rollout(
+    scene_id: Annotated[str, typer.Argument(help="Scene task id, e.g. scene_000000.")],
+    grasp_id: Annotated[int, typer.Argument(help="Grasp id within the scene (the grasps table's grasp_id).")],
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="PNG strip or GIF (default: OUT/show/<scene>_g<id>.png).")
+    ] = None,
+    frames: Annotated[int, typer.Option("--frames", "-n", help="At most this many frames.", min=1, max=16)] = 6,
+    config: ConfigOpt = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Output folder of the run (overrides run.out).")] = None,
+    set_: SetOpt = None,
+) -> None:
+    """Re-run one grasp of a scene and write frames of it (placement, approach, closing, lift) with its outcome."""
+    import pyarrow.parquet as pq
+
+    from stages.objects import read_object
+    from stages.show import rollout_movie, save_movie
+
+    console = Console(stderr=True)
+    try:
+        cfg = load(PROJECT, config, set_, out=out)
+        if output is not None and output.suffix.lower() not in (".png", ".gif"):
+            raise ValueError(f"{output}: unsupported image type {output.suffix or '(none)'!r}; use .png or .gif")
+        scene_path, current = find_shard(PROJECT, cfg, "scenes", scene_id)
+        grasps = pq.read_table(find_shard(PROJECT, cfg, "grasps", scene_id)[0])
+        try:
+            rollouts = pq.read_table(find_shard(PROJECT, cfg, "rollouts", scene_id)[0])
+        except StageError:
+            rollouts = None  # grasps exist but were not rolled out yet: show the re-run alone
+        movie = rollout_movie(
+            scene_path,
+            lambda name: read_object(find_shard(PROJECT, cfg, "objects", name)[0]),
+            grasps,
+            grasp_id,
+            cfg.rollouts.lift,
+            rollouts=rollouts,
+            n_frames=frames,
+        )
+        if output is None:
+            output = Path(cfg.run.out) / "show" / f"{scene_id}_g{grasp_id}.png"
+        save_movie(movie, output)
+    except (GenError, ValueError) as exc:
+        fail(console, str(exc))
+    if not current:
+        console.print(f"note: {scene_id} is from an earlier config (its key differs from the current one)")
+    stored = "not rolled out" if movie.stored_outcome is None else str(movie.stored_outcome)
+    console.print(f"outcome {movie.result.code} {movie.result.name} (stored: {stored}); {len(movie.images)} frames",
+                  highlight=False)
+    print(output)
+
+
+@app.command("evaluate")
+def evaluate(
+    grasps: Annotated[
+        Path, typer.Option("--grasps", help="ACRONYM grasp file (.h5, .hdf5) or Parquet of TCP poses (.parquet).")
+    ],
+    gripper: Annotated[str, typer.Option("--gripper", help="Gripper to evaluate with: box_jaw, panda, robotiq_2f85.")],
+    output: Annotated[Path, typer.Option("--out", "-o", help="Output Parquet file, one row per input grasp.")],
+    mesh_root: Annotated[
+        Path | None, typer.Option("--mesh-root", help="Folder ACRONYM's object/file is relative to (default: cwd).")
+    ] = None,
+    mesh: Annotated[
+        Path | None, typer.Option("--mesh", help="Mesh file: needed with Parquet input; replaces object/file.")
+    ] = None,
+    scale: Annotated[
+        float | None, typer.Option("--scale", help="Metres per mesh unit (default: object/scale; Parquet: detect).")
+    ] = None,
+    friction: Annotated[
+        float | None, typer.Option("--friction", help="Object friction (default: object/friction, else 0.5).")
+    ] = None,
+    support: Annotated[
+        bool, typer.Option("--support", help="Object on a table in its most probable stable pose (not free space).")
+    ] = False,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Worker processes (0 = all cores).")] = 1,
+    config: ConfigOpt = None,
+    set_: SetOpt = None,
+) -> None:
+    """Label external grasps of one object with our simulator (outcome 0-5 per grasp, in input order).
+
+    Free space by default, as ACRONYM: no support; gravity off until the fingers have closed.
+
+    ACRONYM: hand-base poses + the file gripper's TCP offset; object/scale, mass (or density), friction are used.
+
+    --config: the protocol is its rollouts.lift, CoACD its objects.coacd (else cheap), cache in run.cache_dir.
+    """
+    import dataclasses
+    import json
+
+    import numpy as np
+    import pyarrow as pa
+
+    from pipeline.errors import InputError
+    from pipeline.io import write_parquet
+    from stages.acronym import read_acronym
+    from stages.evaluate import (
+        CHEAP_COACD,
+        METADATA_KEY,
+        EvaluateParams,
+        evaluate_grasps,
+        outcome_counts,
+        read_pose_table,
+    )
+    from stages.grippers import get_gripper
+
+    console = Console(stderr=True)
+    try:
+        cfg = load(PROJECT, config, set_)
+        get_gripper(gripper)  # ConfigError listing the grippers, before any work
+        suffix = grasps.suffix.lower()
+        if not grasps.is_file():
+            raise InputError(f"{grasps}: grasp file not found")
+        params = EvaluateParams(lift=cfg.rollouts.lift, coacd=cfg.objects.coacd if config else CHEAP_COACD)
+        reference = None
+        if suffix in (".h5", ".hdf5"):
+            acr = read_acronym(grasps)
+            try:
+                T = acr.tcp_poses()
+            except GenError as exc:
+                raise InputError(f"{grasps}: gripper/type {acr.gripper_type!r}: {exc}") from None
+            widths = None
+            root = mesh_root if mesh_root is not None else Path.cwd()
+            mesh_path = mesh if mesh is not None else root / acr.object_file
+            if not mesh_path.is_file():
+                how = "--mesh" if mesh is not None else f"object/file {acr.object_file!r} under --mesh-root {root}"
+                raise InputError(f"{grasps}: mesh not found: {mesh_path} ({how})")
+            scale = acr.object_scale if scale is None else scale
+            fric = friction if friction is not None else acr.object_friction
+            params = dataclasses.replace(
+                params,
+                friction=fric if fric is not None else params.friction,
+                mass=acr.object_mass,
+                density=acr.object_density if acr.object_density is not None else params.density,
+            )
+            reference = acr.success
+        elif suffix == ".parquet":
+            if mesh is None:
+                raise InputError(f"{grasps}: a Parquet grasp file needs --mesh (the mesh its poses refer to)")
+            T, widths = read_pose_table(grasps)
+            mesh_path = mesh if mesh_root is None or mesh.is_absolute() else mesh_root / mesh
+            if not mesh_path.is_file():
+                raise InputError(f"{grasps}: mesh not found: {mesh_path} (--mesh)")
+            if friction is not None:
+                params = dataclasses.replace(params, friction=friction)
+        else:
+            raise InputError(
+                f"{grasps}: unsupported grasp file format {grasps.suffix or '(none)'!r}; expected an ACRONYM HDF5 "
+                "file (.h5, .hdf5) or a Parquet table of poses (.parquet)"
+            )
+        table = evaluate_grasps(
+            mesh_path, scale, T, widths, gripper, params, free_space=not support, jobs=jobs, cache_dir=cfg.run.cache_dir
+        )
+    except (GenError, ValueError) as exc:
+        fail(console, str(exc))
+    if reference is not None:  # keep the file's own label next to ours, for comparison
+        table = table.append_column("reference_success", pa.array(np.asarray(reference, dtype=np.int8)))
+    output.parent.mkdir(parents=True, exist_ok=True)
+    write_parquet(output, table)
+    for warning in json.loads(table.schema.metadata[METADATA_KEY.encode()])["warnings"]:
+        console.print(f"warning: {warning}", highlight=False)
+    counts = ", ".join(f"{name} {n}" for name, n in outcome_counts(table).items() if n)
+    console.print(f"{len(table)} grasps ({'support plane' if support else 'free space'}): {counts}", highlight=False)
+    if reference is not None:
+        agree = int(np.sum((table.column("outcome").to_numpy() == 5) == (np.asarray(reference) == 1)))
+        console.print(f"agreement with the file's success label: {agree}/{len(table)}", highlight=False)
+    print(output)
+
+
+@app.command("report")
+def report_cmd(
+    out: Annotated[Path, typer.Argument(help="The run folder (or its dataset/ folder) of a published dataset.")],
+) -> None:
+    """Render the dataset card (card.md, card.json) and its plots again from a published dataset."""
+    from stages.dataset import report
+
+    console = Console(stderr=True)
+    try:
+        path = report(out)
+    except GenError as exc:
+        fail(console, str(exc))
+    print(path)
+
+
+@app.command("validate")
+def validate_cmd(
+    out: Annotated[Path, typer.Argument(help="The run folder (or its dataset/ folder) of a published dataset.")],
+) -> None:
+    """Check every file of a dataset against its manifest / card hashes and the schema; list what is wrong."""
+    from stages.dataset import validate
+
+    console = Console(stderr=True)
+    try:
+        problems, checked = validate(out)
+    except GenError as exc:
+        fail(console, str(exc))
+    if problems:
+        console.print(f"[bold red]{len(problems)} problem(s)[/] in {out} ({checked} files checked):", highlight=False)
+        for p in problems:
+            console.print(f"  {p}", highlight=False, soft_wrap=True)
+        raise typer.Exit(1)
+    console.print(f"OK: {out}: {checked} files match their hashes; the table matches its schema",
+                  highlight=False, soft_wrap=True)
 
 
 def main() -> None:

@@ -5,8 +5,11 @@ from __future__ import annotations
 import dataclasses
 
 from pipeline.config import RunConfig
+from stages.dataset import DatasetParams
 from stages.objects import ObjectsParams
 from stages.grasps import GraspsParams
+from stages.metrics import MetricsParams
+from stages.robustness import RobustnessParams
 from stages.rollouts import RolloutsParams
 from stages.scenes import ScenesParams
 
@@ -25,3 +28,9 @@ class Config:
     """Stage 3: antipodal grasp candidates with a collision pre-filter."""
     rollouts: RolloutsParams = dataclasses.field(default_factory=RolloutsParams)
     """Stage 4: grasp-and-lift in MuJoCo, outcome codes 0-5."""
+    robustness: RobustnessParams = dataclasses.field(default_factory=RobustnessParams)
+    """Stage 5: success rate of perturbed copies of each successful grasp (Wilson interval), their epsilon and pfc."""
+    metrics: MetricsParams = dataclasses.field(default_factory=MetricsParams)
+    """Stage 6: Ferrari-Canny epsilon per grasp and the minimum friction for force closure."""
+    dataset: DatasetParams = dataclasses.field(default_factory=DatasetParams)
+    """Stage 7: the published dataset (merged grasps.parquet, scenes, objects, ACRONYM export, card and plots)."""

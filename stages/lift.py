@@ -183,6 +183,10 @@ class LiftParams:
     """Oscillations per shake axis."""
 
     # -- outcome thresholds -----------------------------------------------------------------------------------------
+    target_touch_fails: bool = False
+    """During the approach, any gripper contact with the target is a collision (code 1). False (default): a
+    touch is tolerated and only moving the target beyond ``max_target_shift``/``max_target_turn`` is code 1. A
+    touch at placement (the open gripper starts inside the target) is code 1 either way."""
     max_target_shift: float = 0.005
     """During placement/approach the target's centre of mass may move at most this (m) from its initial position;
     more is a collision with the target (code 1). Other objects moving more is a collision with clutter (code 2)."""
@@ -422,9 +426,11 @@ class LiftSimulator:
        Contact with support -> **0 collision_with_ground**; with the target -> **1 collision_with_target**; with
        another object -> **2 collision_with_clutter**.
     2. **approach**: the mocap target moves along +z to the grasp pose (trapezoidal profile, ``approach_speed``,
-       ``approach_acceleration``). The same contact rules as in 1 (0 / 1 / 2); and the target's centre of mass
-       moved more than ``max_target_shift`` or turned more than ``max_target_turn`` from its initial pose -> **1**;
-       another object moved/turned more than that -> **2**.
+       ``approach_acceleration``). Contact with support -> **0**, with another object -> **2**; contact with the
+       target -> **1** only when ``target_touch_fails`` (by default a finger may brush the target, as a real
+       gripper's does, and what counts is whether it pushes it); the target's centre of mass moved more than
+       ``max_target_shift`` or turned more than ``max_target_turn`` from its initial pose -> **1**; another object
+       moved/turned more than that -> **2**.
     3. **closing**: the width command goes to ``min_width``, so each jaw presses with ``grip_force``. Closing ends
        when the pad separation changes slower than ``close_speed_tol`` averaged over a check interval, or after
        ``close_timeout``. Then both jaws (each jaw's pad or finger link) must touch the target; otherwise ->
@@ -604,8 +610,9 @@ class LiftSimulator:
         self._roles[target_body] = (bid, roles, int(np.flatnonzero(self._objects == bid)[0]))
         return self._roles[target_body]
 
-    def _contact_code(self, roles: np.ndarray) -> int | None:
-        """Lowest outcome code (0 support, 1 target, 2 clutter) among current gripper contacts; None if none."""
+    def _contact_code(self, roles: np.ndarray, *, allow_target: bool = False) -> int | None:
+        """Lowest outcome code (0 support, 1 target, 2 clutter) among current gripper contacts; None if none.
+        ``allow_target`` ignores contacts with the target."""
         ncon = self.data.ncon
         if ncon == 0:
             return None
@@ -614,8 +621,10 @@ class LiftSimulator:
         mask = grip[:, 0] != grip[:, 1]
         if not mask.any():
             return None
-        other = np.where(grip[:, 0], geom[:, 1], geom[:, 0])[mask]
-        return int(roles[other].min())
+        codes = roles[np.where(grip[:, 0], geom[:, 1], geom[:, 0])[mask]]
+        if allow_target:
+            codes = codes[codes != _TARGET]
+        return int(codes.min()) if len(codes) else None
 
     def _moved(self, pos0: np.ndarray, quat0: np.ndarray) -> np.ndarray:
         """``(n_objects,) bool``: which objects' centres of mass moved more than ``max_target_shift`` or turned more
@@ -763,7 +772,7 @@ class LiftSimulator:
                 observer("placement", 0)
 
             def check_approach(phase: str) -> None:
-                code = self._contact_code(roles)
+                code = self._contact_code(roles, allow_target=phase != "placement" and not p.target_touch_fails)
                 if code is not None:
                     raise _Decided(code, phase)
                 moved = self._moved(pos0, quat0)

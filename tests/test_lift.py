@@ -133,6 +133,18 @@ def test_pushing_into_the_target_with_a_narrow_width_is_a_target_collision():
     assert (res.code, res.name, res.decided_in) == (1, "collision_with_target", "approach")
 
 
+def test_a_finger_brushing_the_target_on_the_way_down_is_not_a_collision_by_default():
+    # Opened to exactly the box's width (no margin): both pads slide down the box's faces, touching them.
+    # (Shifted 1 mm sideways, a pad drags the box past the 5 deg turn limit: that is code 1 either way.)
+    T = _top_down(x=0.0001)
+    brushing = L.LiftParams(width_margin=0.0)
+    res = _rollout(_world(), T, params=brushing)
+    assert res.code == 5, res
+    strict = L.LiftParams(width_margin=0.0, target_touch_fails=True)
+    res = _rollout(_world(), T, params=strict)
+    assert (res.code, res.decided_in) == (1, "approach")
+
+
 def test_target_already_touching_at_pre_grasp_is_decided_at_placement():
     # The pre-grasp pose 5 cm above a grasp 5 cm down into a 15 cm tall box still has the pads on the box.
     model = _world([{"half": (HALF, HALF, 0.075)}])

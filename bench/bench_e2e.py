@@ -1,0 +1,253 @@
+"""End to end: the whole default config, cold and warm, one and two workers (DESIGN section 9).
+
+Runs, each in a fresh Python process (``--child`` mode of this script, which calls
+:func:`pipeline.scheduler.run_pipeline`) into its own output folder under ``build/bench_e2e``:
+
+1. ``cold``: a fresh output folder and a fresh CoACD cache, ``--jobs 2``: what a first ``make dataset`` costs;
+2. ``warm``: the same command again: every task is skipped (what a second ``make dataset`` costs);
+3. ``jobs1`` and ``jobs2``: a fresh output folder with the CoACD cache of run 1, ``--jobs 1`` and ``--jobs 2``:
+   the compute of the pipeline without the decomposition; their wall-time ratio is the scaling of 2 workers
+   (DESIGN 9: at least 1.8x). ``--rounds R`` repeats this pair R times, interleaved, and keeps each one's best
+   (the machine is shared; the minimum is the least disturbed);
+4. ``dask`` (unless ``--no-dask``): like ``jobs2`` on a dask.distributed LocalCluster of 2 worker processes.
+
+Reported: per-stage seconds (each stage's wall time in the run, publish included for ``dataset``), grasps labelled
+per core-hour (rows of the published grasps.parquet / (wall seconds x workers / 3600); every row has an outcome
+and, for successes, robustness from its perturbed copies) and simulated rollouts per core-hour (grasp-and-lift
+rollouts of the rollouts stage plus the robustness stage's perturbed copies), the scaling ratio, and the peak
+resident memory of the run's processes: the parent (scheduling, publish) and the largest worker. Memory is the
+kernel's high-water mark ``VmHWM`` of each process (``/proc/<pid>/status``), sampled every 0.1 s over the run's
+process tree (the mark only grows, so sampling misses at most a process's last 0.1 s). Also checked: the
+published grasps.parquet has the same sha256 in every run (workers and backend do not change bytes).
+
+Run: ``python bench/bench_e2e.py [--config configs/default.yaml] [--rounds 1] [--no-dask]``; prints a table and
+writes ``bench/results.json``. Linux only (``/proc``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = Path(__file__).resolve().parent / "results.json"
+WORK = ROOT / "build" / "bench_e2e"
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The child: one pipeline run
+
+
+def child(args: argparse.Namespace) -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import pyarrow.parquet as pq
+
+    from pipeline.config import load_config
+    from pipeline.keys import sha256_file
+    from pipeline.scheduler import run_pipeline
+    from stages.cli import PROJECT
+
+    sets = [f"run.out={args.out}", f"run.cache_dir={args.cache}", f"run.jobs={args.jobs}", f"run.backend={args.backend}"]
+    cfg = load_config(PROJECT.schema, args.config, sets)
+    start = time.perf_counter()
+    reports = run_pipeline(PROJECT, cfg)
+    wall = time.perf_counter() - start
+    published = Path(args.out) / "dataset" / "grasps.parquet"
+    t = pq.read_table(published, columns=["outcome", "simulated", "robustness_n"])
+    result = {
+        "wall_s": wall,
+        "stages": [
+            {"stage": r.stage, "tasks": r.total, "ran": r.ran, "skipped": r.skipped, "failed": r.failed,
+             "seconds": r.seconds}
+            for r in reports
+        ],
+        "grasps": len(t),
+        "successes": int((t.column("outcome").to_numpy() == 5).sum()),
+        "rollouts": int(sum(t.column("simulated").to_pylist())) + int(sum(t.column("robustness_n").to_pylist())),
+        "grasps_sha256": sha256_file(published),
+    }
+    Path(args.result).write_text(json.dumps(result))
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The parent: run children, watch their memory
+
+
+def _hwm_kb(pid: int) -> int | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def _descendants(pid: int) -> list[int]:
+    import psutil
+
+    try:
+        return [p.pid for p in psutil.Process(pid).children(recursive=True)]
+    except psutil.Error:
+        return []
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def run_child(name: str, config: str, out: Path, cache: Path, jobs: int, backend: str = "loky") -> dict:
+    """One pipeline run in a fresh process; returns its result plus peak memory of parent and workers (MB)."""
+    result_path = WORK / f"{name}.json"
+    cmd = [sys.executable, __file__, "--child", "--config", config, "--out", str(out), "--cache", str(cache),
+           "--jobs", str(jobs), "--backend", backend, "--result", str(result_path)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    peaks: dict[int, int] = {}
+    kinds: dict[int, str] = {}
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.is_set():
+            for pid in [proc.pid, *_descendants(proc.pid)]:
+                hwm = _hwm_kb(pid)
+                if hwm is not None:
+                    peaks[pid] = max(peaks.get(pid, 0), hwm)
+                    if pid not in kinds:
+                        kinds[pid] = "parent" if pid == proc.pid else _cmdline(pid)
+            time.sleep(0.1)
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    output, _ = proc.communicate()
+    done.set()
+    thread.join()
+    if proc.returncode != 0:
+        sys.stdout.write(output)
+        raise SystemExit(f"bench_e2e: run {name} failed with exit code {proc.returncode}")
+    result = json.loads(result_path.read_text())
+    # Helper processes (loky's resource tracker, multiprocessing's) hold no task data: not workers.
+    workers = [kb for pid, kb in peaks.items() if kinds[pid] != "parent" and "tracker" not in kinds[pid]]
+    result["peak_rss_parent_mb"] = round(peaks.get(proc.pid, 0) / 1024, 1)
+    result["peak_rss_worker_mb"] = round(max(workers, default=0) / 1024, 1)
+    result["workers_seen"] = len(workers)
+    result["jobs"], result["backend"], result["name"] = jobs, backend, name
+    return result
+
+
+def _per_core_hour(count: int, wall: float, jobs: int) -> float:
+    return count / (wall * jobs / 3600.0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--config", default="configs/default.yaml")
+    parser.add_argument("--rounds", type=int, default=1, help="jobs1/jobs2 pairs (best of each is kept)")
+    parser.add_argument("--no-dask", action="store_true", help="skip the dask.distributed run")
+    parser.add_argument("--results", type=Path, default=RESULTS)
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--out", help=argparse.SUPPRESS)
+    parser.add_argument("--cache", help=argparse.SUPPRESS)
+    parser.add_argument("--jobs", type=int, default=2, help=argparse.SUPPRESS)
+    parser.add_argument("--backend", default="loky", help=argparse.SUPPRESS)
+    parser.add_argument("--result", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        child(args)
+        return 0
+
+    if WORK.exists():
+        shutil.rmtree(WORK)
+    WORK.mkdir(parents=True)
+    cache = WORK / "cache"
+    runs = {}
+    print(f"bench_e2e: {args.config} on {os.cpu_count()} cores ({platform.processor() or platform.machine()})",
+          flush=True)
+    runs["cold"] = run_child("cold", args.config, WORK / "out_cold", cache, 2)
+    print(f"  cold   {runs['cold']['wall_s']:6.1f} s", flush=True)
+    runs["warm"] = run_child("warm", args.config, WORK / "out_cold", cache, 2)
+    print(f"  warm   {runs['warm']['wall_s']:6.1f} s", flush=True)
+    for r in range(args.rounds):
+        for jobs in (1, 2):
+            name = f"jobs{jobs}"
+            out = WORK / f"out_{name}_{r}"
+            res = run_child(f"{name}_{r}", args.config, out, cache, jobs)
+            shutil.rmtree(out)
+            print(f"  {name} round {r}: {res['wall_s']:6.1f} s", flush=True)
+            if name not in runs or res["wall_s"] < runs[name]["wall_s"]:
+                runs[name] = res
+    if not args.no_dask:
+        runs["dask"] = run_child("dask", args.config, WORK / "out_dask", cache, 2, backend="dask")
+        print(f"  dask   {runs['dask']['wall_s']:6.1f} s", flush=True)
+
+    one, two = runs["jobs1"], runs["jobs2"]
+    stage_names = [s["stage"] for s in one["stages"]]
+    per_stage = {
+        name: {run: next(s["seconds"] for s in runs[run]["stages"] if s["stage"] == name) for run in runs}
+        for name in stage_names
+    }
+    parallel = [n for n in stage_names if next(s["tasks"] for s in one["stages"] if s["stage"] == n) > 1]
+    par1 = sum(per_stage[n]["jobs1"] for n in parallel)
+    par2 = sum(per_stage[n]["jobs2"] for n in parallel)
+    summary = {
+        "scaling_2_vs_1": round(one["wall_s"] / two["wall_s"], 3),
+        "scaling_2_vs_1_multi_task_stages": round(par1 / par2, 3),
+        "grasps": two["grasps"],
+        "successes": two["successes"],
+        "simulated_rollouts": two["rollouts"],
+        "grasps_per_core_hour_jobs1": round(_per_core_hour(one["grasps"], one["wall_s"], 1)),
+        "grasps_per_core_hour_jobs2": round(_per_core_hour(two["grasps"], two["wall_s"], 2)),
+        "grasps_per_core_hour_cold": round(_per_core_hour(runs["cold"]["grasps"], runs["cold"]["wall_s"], 2)),
+        "rollouts_per_core_hour_jobs2": round(_per_core_hour(two["rollouts"], two["wall_s"], 2)),
+        "peak_rss_worker_mb": max(r["peak_rss_worker_mb"] for r in runs.values()),
+        "peak_rss_parent_mb": max(r["peak_rss_parent_mb"] for r in runs.values()),
+        "same_grasps_parquet": len({r["grasps_sha256"] for r in runs.values()}) == 1,
+    }
+
+    cols = list(runs)
+    header = f"{'stage':<11}" + "".join(f"{c:>9}" for c in cols) + f"{'1/2 ratio':>11}"
+    print()
+    print(header)
+    print("-" * len(header))
+    for name in stage_names:
+        cells = "".join(f"{per_stage[name][c]:9.1f}" for c in cols)
+        ratio = per_stage[name]["jobs1"] / per_stage[name]["jobs2"] if per_stage[name]["jobs2"] > 0 else float("nan")
+        print(f"{name:<11}{cells}{ratio:11.2f}")
+    print("-" * len(header))
+    print(f"{'wall':<11}" + "".join(f"{runs[c]['wall_s']:9.1f}" for c in cols) + f"{summary['scaling_2_vs_1']:11.2f}")
+    print(f"{'peak worker':<11}" + "".join(f"{runs[c]['peak_rss_worker_mb']:8.0f}M" for c in cols))
+    print(f"{'peak parent':<11}" + "".join(f"{runs[c]['peak_rss_parent_mb']:8.0f}M" for c in cols))
+    print()
+    print(f"grasps: {summary['grasps']} ({summary['successes']} successes), simulated rollouts (incl. perturbed "
+          f"copies): {summary['simulated_rollouts']}")
+    print(f"grasps labelled per core-hour: {summary['grasps_per_core_hour_jobs1']} (1 worker), "
+          f"{summary['grasps_per_core_hour_jobs2']} (2 workers), {summary['grasps_per_core_hour_cold']} (cold, 2 "
+          f"workers, CoACD included); rollouts per core-hour (2 workers): {summary['rollouts_per_core_hour_jobs2']}")
+    print(f"scaling 2 vs 1 worker: {summary['scaling_2_vs_1']}x whole run, "
+          f"{summary['scaling_2_vs_1_multi_task_stages']}x in the stages with more than one task ({', '.join(parallel)})")
+    print(f"peak RSS per worker: {summary['peak_rss_worker_mb']} MB (parent {summary['peak_rss_parent_mb']} MB)")
+    print(f"grasps.parquet identical in every run: {summary['same_grasps_parquet']}")
+    payload = {
+        "config": args.config,
+        "machine": {"cores": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+        "summary": summary,
+        "per_stage_seconds": per_stage,
+        "runs": runs,
+    }
+    args.results.write_text(json.dumps(payload, indent=2) + "\n")
+    print(f"wrote {args.results}")
+    return 0 if summary["same_grasps_parquet"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,452 @@
+"""Grasps drawn on a scene's camera image: the picture behind ``gen show grasps``.
+
+Each grasp is drawn as the classic parallel-jaw "fork" marker, in 3-D and then projected: in the grasp's TCP frame
+(DESIGN section 4: z approach, x closing, origin at the pads' centre) the two fingers are segments at
+``x = -+open_width / 2`` from the pad tips (``z = +pad_length / 2``) back to ``z = -pad_length / 2``, a palm bar
+joins their backs, and a stem of one pad length points back along -z (which way the gripper came from).
+:func:`grasp_marker_segments` gives these segments in the world frame; :func:`segment_pixels` projects them with a
+scene view's :class:`~stages.scene_model.Camera` (OpenCV convention, the same as :func:`stages.scene_model.project`);
+:func:`draw_grasps` draws them with Pillow on the view's RGB image, upscaled so that markers stay legible on a
+320 x 240 render.
+
+Labels (:data:`LABELS`): with a rollouts table, a grasp is coloured by its outcome code (5 success green,
+4 slipped orange, 3 no contact yellow, 0/1/2 collisions in shades of red); without one, by the pre-filter's code
+(-1 free blue, 0/1/2 rejected in the same reds). :func:`choose_grasps` picks at most ``n`` grasps
+deterministically, as evenly over the labels as they allow. :func:`grasp_picture` puts it all together with a
+legend. Everything here is a pure function of its arguments.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pyarrow as pa
+from PIL import Image, ImageDraw, ImageFont
+
+from stages.grasps import column_array
+from stages.grippers import GripperSpec, get_gripper
+from stages.scene_model import Camera, project, transform_points
+from stages.scenes import SceneRecord
+
+__all__ = [
+    "MARKER_SEGMENTS",
+    "LABELS",
+    "NEAR_CLIP",
+    "grasp_marker_segments",
+    "segment_pixels",
+    "draw_grasps",
+    "grasp_labels",
+    "rollouts_match",
+    "choose_grasps",
+    "grasp_picture",
+]
+
+MARKER_SEGMENTS = 4
+"""Segments per marker: left finger, right finger, palm bar, stem."""
+
+NEAR_CLIP = 1e-3
+"""Segments are clipped to camera-frame depth z >= this (m) before projecting: a point behind the camera has no
+image, and one just in front of it projects arbitrarily far away."""
+
+_GREEN, _ORANGE, _YELLOW, _BLUE = (40, 200, 60), (255, 140, 0), (250, 225, 0), (40, 120, 255)
+_DARK_RED, _RED, _PINK_RED = (150, 0, 20), (235, 30, 30), (255, 110, 130)
+
+LABELS: dict[str, dict[int, tuple[str, tuple[int, int, int]]]] = {
+    "rollouts": {
+        5: ("success", _GREEN),
+        4: ("slipped_during_lifting", _ORANGE),
+        3: ("no_contact_established", _YELLOW),
+        0: ("collision_with_ground", _DARK_RED),
+        1: ("collision_with_target", _RED),
+        2: ("collision_with_clutter", _PINK_RED),
+    },
+    "prefilter": {
+        -1: ("free", _BLUE),
+        0: ("collision_with_ground", _DARK_RED),
+        1: ("collision_with_target", _RED),
+        2: ("collision_with_clutter", _PINK_RED),
+    },
+}
+"""Label source -> code -> (name, RGB colour). Rollout codes are the outcome codes (DESIGN section 5.4), pre-filter
+codes those of :mod:`stages.prefilter`. The order of each dict is the priority: first in the legend, first served by
+:func:`choose_grasps`, drawn last (on top)."""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Geometry
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def grasp_marker_segments(T_world: np.ndarray, open_width: np.ndarray, gripper: GripperSpec) -> np.ndarray:
+    """World-frame segments of each grasp's fork marker (see the module docstring).
+
+    Parameters
+    ----------
+    T_world : (n, 4, 4) float
+        TCP poses in the world frame.
+    open_width : (n,) float
+        Jaw opening (m) to draw the fingers at (the grasps table's ``open_width``).
+    gripper : GripperSpec
+        Gives the pad length ``pad_size[2]`` (m): finger and stem length.
+
+    Returns
+    -------
+    (n, MARKER_SEGMENTS, 2, 3) float64
+        Segment end points (m, world): left finger (tip, back), right finger (tip, back), palm bar (left, right),
+        stem (palm centre, end).
+    """
+    T = np.asarray(T_world, dtype=float)
+    w = np.asarray(open_width, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise ValueError(f"T_world: must have shape (n, 4, 4), got {T.shape}")
+    if w.shape != (len(T),):
+        raise ValueError(f"open_width: must have shape ({len(T)},) like T_world, got {w.shape}")
+    half_len = gripper.pad_size[2] / 2.0
+    h = w / 2.0
+    zero = np.zeros_like(h)
+    tip, back = np.full_like(h, half_len), np.full_like(h, -half_len)
+    local = np.stack(
+        [
+            np.stack([np.stack([-h, zero, tip], -1), np.stack([-h, zero, back], -1)], 1),
+            np.stack([np.stack([h, zero, tip], -1), np.stack([h, zero, back], -1)], 1),
+            np.stack([np.stack([-h, zero, back], -1), np.stack([h, zero, back], -1)], 1),
+            np.stack([np.stack([zero, zero, back], -1), np.stack([zero, zero, back - 2 * half_len], -1)], 1),
+        ],
+        axis=1,
+    )  # (n, 4, 2, 3) in the TCP frame
+    return np.einsum("nij,nsej->nsei", T[:, :3, :3], local) + T[:, None, None, :3, 3]
+
+
+def segment_pixels(camera: Camera, segments: np.ndarray, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Image coordinates of world-frame segments seen by ``camera``, clipped to the near plane.
+
+    Parameters
+    ----------
+    camera : Camera
+        OpenCV-convention camera (``K``, camera-to-world ``T_world_camera``).
+    segments : (..., 2, 3) float
+        Segment end points (m, world).
+    scale : float
+        Image upscaling factor: coordinates are for the image resized by ``scale`` (pixel centres at integers in
+        both, so ``u' = scale (u + 0.5) - 0.5``).
+
+    Returns
+    -------
+    uv : (..., 2, 2) float64
+        (u = column, v = row) of both end points; an end point behind :data:`NEAR_CLIP` is replaced by the
+        segment's crossing of that plane. NaN where the whole segment is behind it.
+    visible : (...) bool
+        Whether any part of the segment lies in front of the camera.
+    """
+    seg = np.asarray(segments, dtype=float)
+    if seg.shape[-2:] != (2, 3):
+        raise ValueError(f"segments: must have shape (..., 2, 3), got {seg.shape}")
+    p = transform_points(np.linalg.inv(np.asarray(camera.T_world_camera, dtype=float)), seg)
+    a, b = p[..., 0, :], p[..., 1, :]
+    za, zb = a[..., 2:3], b[..., 2:3]
+    visible = (za[..., 0] >= NEAR_CLIP) | (zb[..., 0] >= NEAR_CLIP)
+    # Move an end point behind the near plane along the segment onto it (only where the other end is in front).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_a = np.where(za < NEAR_CLIP, (NEAR_CLIP - za) / (zb - za), 0.0)
+        t_b = np.where(zb < NEAR_CLIP, (NEAR_CLIP - zb) / (za - zb), 0.0)
+    a_clip = a + np.clip(np.nan_to_num(t_a), 0.0, 1.0) * (b - a)
+    b_clip = b + np.clip(np.nan_to_num(t_b), 0.0, 1.0) * (a - b)
+    clipped = np.stack([a_clip, b_clip], axis=-2)
+    clipped[..., 2] = np.maximum(clipped[..., 2], NEAR_CLIP)  # round-off of the crossing point
+    uv = scale * (project(camera.K, clipped) + 0.5) - 0.5
+    uv[~visible] = np.nan
+    return uv, visible
+
+
+def _clip_segments(uv: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """Segments ``(..., 2, 2)`` cut to the square ``[-limit, limit]^2`` (Liang-Barsky): (clipped end points, whether
+    any part is inside). NaN segments are outside."""
+    a, d = uv[..., 0, :], uv[..., 1, :] - uv[..., 0, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_low, t_high = (-limit - a) / d, (limit - a) / d
+    t_in = np.where(d == 0, np.where(np.abs(a) <= limit, -np.inf, np.inf), np.minimum(t_low, t_high))
+    t_out = np.where(d == 0, np.where(np.abs(a) <= limit, np.inf, -np.inf), np.maximum(t_low, t_high))
+    t0 = np.maximum(0.0, t_in.max(axis=-1))
+    t1 = np.minimum(1.0, t_out.min(axis=-1))
+    inside = (t0 <= t1) & np.isfinite(uv).all(axis=(-1, -2))
+    t0, t1 = np.where(inside, t0, 0.0), np.where(inside, t1, 0.0)  # outside: the inf bounds are not used
+    clipped = np.stack([a + t0[..., None] * d, a + t1[..., None] * d], axis=-2)
+    return np.where(inside[..., None, None], clipped, np.nan), inside
+
+
+def draw_grasps(
+    rgb: np.ndarray,
+    camera: Camera,
+    segments: np.ndarray,
+    colours: Sequence[Sequence[int]] | np.ndarray,
+    *,
+    scale: int = 3,
+    line_width: int | None = None,
+    outline: bool = True,
+) -> Image.Image:
+    """The image ``rgb`` upscaled by ``scale`` with each grasp's marker drawn on it, in order (later on top).
+
+    Parameters
+    ----------
+    rgb : (H, W, 3) uint8
+        The view's image; ``camera`` must be the camera that took it (``camera.width == W``, ``height == H``).
+    camera : Camera
+    segments : (n, s, 2, 3) float
+        World-frame marker segments (:func:`grasp_marker_segments`).
+    colours : (n, 3) int
+        RGB colour of each marker.
+    scale : int
+        Nearest-neighbour upscaling of the image (markers are drawn at the upscaled resolution, so they are thin
+        and sharp on a small render).
+    line_width : int or None
+        Line width in upscaled pixels; default ``max(1, scale - 1)``.
+    outline : bool
+        Draw each marker first in black, 2 pixels wider, so that it stands out on any background.
+
+    Returns
+    -------
+    PIL.Image.Image
+        RGB, ``(W scale, H scale)``.
+    """
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"rgb: must be an (H, W, 3) uint8 image, got {rgb.shape} {rgb.dtype}")
+    if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
+        raise ValueError(f"camera: image size {camera.width}x{camera.height} differs from rgb's "
+                         f"{rgb.shape[1]}x{rgb.shape[0]}")
+    if not (isinstance(scale, (int, np.integer)) and scale >= 1):
+        raise ValueError(f"scale: must be a positive integer, got {scale!r}")
+    seg = np.asarray(segments, dtype=float)
+    if seg.ndim != 4 or seg.shape[2:] != (2, 3):
+        raise ValueError(f"segments: must have shape (n, s, 2, 3), got {seg.shape}")
+    cols = np.asarray(colours, dtype=int).reshape(-1, 3) if len(seg) else np.zeros((0, 3), dtype=int)
+    if len(cols) != len(seg):
+        raise ValueError(f"colours: need one RGB colour per grasp ({len(seg)}), got {len(cols)}")
+    width = max(1, scale - 1) if line_width is None else int(line_width)
+    h, w = rgb.shape[:2]
+    image = Image.fromarray(rgb).resize((w * scale, h * scale), Image.Resampling.NEAREST)
+    draw = ImageDraw.Draw(image)
+    uv, visible = segment_pixels(camera, seg, scale)
+    # Points near the camera plane project arbitrarily far, and Pillow walks a 1-pixel line pixel by pixel (seconds
+    # for 1e9 pixels): cut every segment to a box around the image first, along the segment.
+    uv, inside = _clip_segments(uv, 2.0 * max(w, h) * scale)
+    visible &= inside
+    # Round to the nearest pixel centre ourselves: Pillow truncates float coordinates, which would shift an end point
+    # that lands a hair below an integer by a whole pixel.
+    uv = np.floor(np.nan_to_num(uv) + 0.5).astype(np.int64)
+    for i in range(len(seg)):
+        passes = [((0, 0, 0), width + 2)] if outline else []
+        passes.append((tuple(int(c) for c in cols[i]), width))
+        for fill, lw in passes:
+            for k in np.flatnonzero(visible[i]):
+                (u0, v0), (u1, v1) = uv[i, k]
+                draw.line([(int(u0), int(v0)), (int(u1), int(v1))], fill=fill, width=lw)
+    return image
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Labels and choice
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def rollouts_match(grasps: pa.Table, rollouts: pa.Table) -> bool:
+    """Whether ``rollouts`` is the rollouts table of ``grasps``: the same grasp ids in order, and every grasp the
+    rollouts did not simulate labelled with its pre-filter code (as the rollouts stage does)."""
+    if len(grasps) != len(rollouts):
+        return False
+    if grasps.column("grasp_id").to_pylist() != rollouts.column("grasp_id").to_pylist():
+        return False
+    pre = grasps.column("prefilter_code").to_numpy().astype(int)
+    outcome = rollouts.column("outcome").to_numpy().astype(int)
+    simulated = rollouts.column("simulated").to_numpy(zero_copy_only=False).astype(bool)
+    return bool(np.all(outcome[~simulated] == pre[~simulated]) and np.all(pre[~simulated] >= 0))
+
+
+def grasp_labels(grasps: pa.Table, rollouts: pa.Table | None = None) -> tuple[np.ndarray, str]:
+    """Each grasp's label code and the label source (a key of :data:`LABELS`).
+
+    Parameters
+    ----------
+    grasps : pyarrow.Table
+        A grasps table (:data:`stages.grasps.SCHEMA`).
+    rollouts : pyarrow.Table or None
+        Its rollouts table (:data:`stages.rollouts.SCHEMA`), row for row; None labels by the pre-filter.
+
+    Returns
+    -------
+    codes : (n,) int64
+        Outcome codes 0-5 (``"rollouts"``) or pre-filter codes -1..2 (``"prefilter"``).
+    source : str
+    """
+    if rollouts is None:
+        return grasps.column("prefilter_code").to_numpy().astype(np.int64), "prefilter"
+    if not rollouts_match(grasps, rollouts):
+        raise ValueError("rollouts: not the rollouts of this grasps table (grasp ids or pre-filter labels differ)")
+    return rollouts.column("outcome").to_numpy().astype(np.int64), "rollouts"
+
+
+def choose_grasps(codes: np.ndarray, n: int, priority: Sequence[int]) -> np.ndarray:
+    """At most ``n`` row indices, as evenly over the labels as they allow; deterministic.
+
+    Slots are dealt to the labels present one at a time in ``priority`` order (a label with no grasps left is
+    skipped), so each label gets ``n / labels`` or all it has. Within a label the picks are evenly spaced over its
+    rows in row (grasp id) order, so they spread over the scene's objects (rows are grouped by object).
+
+    Parameters
+    ----------
+    codes : (m,) int
+        Label code per row.
+    n : int
+        How many to choose (>= 0).
+    priority : sequence of int
+        Label codes in the order they are served; codes not listed come after them, in increasing order.
+
+    Returns
+    -------
+    (k,) int64
+        ``k = min(n, m)`` row indices, increasing.
+    """
+    codes = np.asarray(codes).astype(np.int64)
+    if n < 0:
+        raise ValueError(f"n: must be >= 0, got {n}")
+    present = [int(c) for c in priority if np.any(codes == c)]
+    present += sorted(int(c) for c in np.unique(codes) if int(c) not in present)
+    available = {c: int(np.count_nonzero(codes == c)) for c in present}
+    quota = dict.fromkeys(present, 0)
+    left = min(n, len(codes))
+    while left > 0:
+        for c in present:
+            if left > 0 and quota[c] < available[c]:
+                quota[c] += 1
+                left -= 1
+    picks = []
+    for c in present:
+        rows = np.flatnonzero(codes == c)
+        q = quota[c]
+        if q:
+            # floor(x + 0.5), not np.round (half to even), so a spacing >= 1 never maps two picks to one row.
+            picks.append(rows[np.floor(np.linspace(0, len(rows) - 1, q) + 0.5).astype(np.int64)])
+    return np.sort(np.concatenate(picks)) if picks else np.zeros(0, dtype=np.int64)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The picture
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
+    try:
+        return ImageFont.load_default(size=size)
+    except (TypeError, ImportError, OSError):  # Pillow without FreeType: the fixed bitmap font
+        return ImageFont.load_default()
+
+
+def _legend(image: Image.Image, title: str, entries: Sequence[tuple[str, tuple[int, int, int], str]]) -> Image.Image:
+    """``image`` with a white strip below: ``title`` and one swatch + text per entry, wrapped to the width."""
+    font = _font(14)
+    pad, swatch, gap = 6, 12, 16
+    probe = ImageDraw.Draw(image)
+    line_h = max(swatch, int(probe.textbbox((0, 0), "Ag", font=font)[3])) + 4
+    lines: list[list[tuple[str, tuple[int, int, int], str, int]]] = [[]]
+    x = pad
+    for name, colour, text in entries:
+        label = f"{name} {text}"
+        item_w = swatch + 4 + int(probe.textlength(label, font=font))
+        if lines[-1] and x + item_w > image.width - pad:
+            lines.append([])
+            x = pad
+        lines[-1].append((label, colour, text, x))
+        x += item_w + gap
+    title_lines = [""]
+    for word in title.split(" "):  # wrap the title at spaces to the image width
+        trial = f"{title_lines[-1]} {word}".strip()
+        if title_lines[-1] and probe.textlength(trial, font=font) > image.width - 2 * pad:
+            title_lines.append(word)
+        else:
+            title_lines[-1] = trial
+    height = pad + line_h * (len(title_lines) + len(lines)) + pad
+    sheet = Image.new("RGB", (image.width, image.height + height), (255, 255, 255))
+    sheet.paste(image, (0, 0))
+    draw = ImageDraw.Draw(sheet)
+    y = image.height + pad - line_h
+    for text in title_lines:
+        y += line_h
+        draw.text((pad, y), text, fill=(0, 0, 0), font=font)
+    for row in lines:
+        y += line_h
+        for label, colour, _, x in row:
+            top = y + (line_h - 4 - swatch) // 2
+            draw.rectangle([x, top, x + swatch, top + swatch], fill=colour, outline=(0, 0, 0))
+            draw.text((x + swatch + 4, y), label, fill=(0, 0, 0), font=font)
+    return sheet
+
+
+def grasp_picture(
+    scene: SceneRecord,
+    grasps: pa.Table,
+    rollouts: pa.Table | None = None,
+    *,
+    view: int = 0,
+    n: int = 30,
+    scale: int = 3,
+    gripper: GripperSpec | None = None,
+) -> Image.Image:
+    """The scene's RGB view ``view`` with up to ``n`` grasp markers, coloured by label, and a legend below.
+
+    Parameters
+    ----------
+    scene : SceneRecord
+        The scene shard read back (needs its RGB images).
+    grasps : pyarrow.Table
+        The scene's grasps table.
+    rollouts : pyarrow.Table or None
+        Its rollouts table: colours by outcome; None colours by the pre-filter result.
+    view : int
+        Camera view to draw on.
+    n : int
+        At most this many markers (:func:`choose_grasps`).
+    scale : int
+        Upscaling of the image (:func:`draw_grasps`).
+    gripper : GripperSpec or None
+        For the marker size; default the grasps table's gripper (the 2F-85 when the table is empty).
+
+    Returns
+    -------
+    PIL.Image.Image
+        ``(W scale, H scale + legend)`` RGB.
+
+    Raises
+    ------
+    ValueError
+        No images in the shard, ``view`` out of range, ``rollouts`` not matching ``grasps``.
+    """
+    if scene.rgb is None:
+        raise ValueError(f"{scene.scene_id}: the shard has no RGB images (made with cameras.render: false)")
+    if not 0 <= view < len(scene.cameras):
+        raise ValueError(f"view: {scene.scene_id} has views 0..{len(scene.cameras) - 1}, got {view}")
+    codes, source = grasp_labels(grasps, rollouts)
+    labels: Mapping[int, tuple[str, tuple[int, int, int]]] = LABELS[source]
+    priority = list(labels)
+    chosen = choose_grasps(codes, n, priority)
+    # Draw low-priority labels first so that successes (or free grasps) end up on top.
+    rank = {c: i for i, c in enumerate(priority)}
+    chosen = chosen[np.argsort([-rank.get(int(codes[i]), len(rank)) for i in chosen], kind="stable")]
+    if gripper is None:
+        name = grasps.column("gripper")[0].as_py() if len(grasps) else "robotiq_2f85"
+        gripper = get_gripper(name)
+    T = column_array(grasps, "pose_world", (4, 4))[chosen]
+    opening = grasps.column("open_width").to_numpy()[chosen]
+    segments = grasp_marker_segments(T, opening, gripper)
+    colours = [labels.get(int(codes[i]), ("?", (255, 255, 255)))[1] for i in chosen]
+    image = draw_grasps(scene.rgb[view], scene.cameras[view], segments, colours, scale=scale)
+    shown = codes[chosen]
+    entries = [
+        (name, colour, f"{int(np.sum(shown == c))}/{int(np.sum(codes == c))}")
+        for c, (name, colour) in labels.items()
+        if np.any(codes == c)
+    ]
+    what = "rollout outcome" if source == "rollouts" else "pre-filter (no rollouts)"
+    title = (f"{scene.scene_id} view {view}: {len(chosen)} of {len(grasps)} grasps ({gripper.name}), "
+             f"coloured by {what}; shown/total")
+    return _legend(image, title, entries)

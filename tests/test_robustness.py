@@ -1,0 +1,343 @@
+"""The robustness stage: Wilson intervals, perturbations in the TCP frame, edge versus centre grasps of the bundled
+box, contacts of perturbed copies, the radius search, and the stage in a real pipeline (rates, bytes, workers)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+from scipy.stats import binomtest
+
+from pipeline.config import load_config
+from pipeline.errors import ConfigError
+from pipeline.repro import shard_hashes
+from pipeline.scheduler import committed, run_pipeline
+from stages.cli import PROJECT
+from stages.contacts import closing_contacts
+from stages.grippers import attach_gripper, get_gripper
+from stages.lift import LiftParams, LiftSimulator
+from stages.mesh_prep import prepare_object
+from stages.metrics import EpsilonParams, contact_set, object_geometry
+from stages.objects import ASSETS, ObjectRecord, catalog
+from stages.robustness import (
+    DRAWS_PER_COPY,
+    RADIUS_AXES,
+    SCHEMA,
+    RobustnessParams,
+    grasp_robustness,
+    initial_object_pose,
+    perturbed_poses,
+    rollout_with_object_pose,
+    rotvec_to_matrix,
+    wilson_interval,
+)
+from stages.scene_model import SupportParams, build_scene_spec, object_body_name, placed_object
+
+GRIPPER = get_gripper("robotiq_2f85")
+FRICTION = 0.5
+
+
+@pytest.fixture(autouse=True)
+def _no_log_in_repo(tmp_path, monkeypatch):
+    """MuJoCo writes MUJOCO_LOG.TXT into the cwd on errors; keep it out of the repository."""
+    monkeypatch.chdir(tmp_path)
+
+
+# ------------------------------------------------------------------------------------------------ Wilson interval
+
+
+@pytest.mark.parametrize(
+    "successes, n, lo, hi",
+    [
+        # Newcombe (1998), Stat. Med. 17:857, Table I, method 3 (Wilson score, no continuity correction)
+        (81, 263, 0.2553, 0.3662),
+        (15, 148, 0.0624, 0.1605),
+        (0, 20, 0.0, 0.1611),
+        (1, 29, 0.0061, 0.1718),
+        (5, 10, 0.2366, 0.7634),
+    ],
+)
+def test_wilson_interval_known_values(successes, n, lo, hi):
+    got = wilson_interval(successes, n)
+    assert got == pytest.approx((lo, hi), abs=5e-5)
+
+
+@pytest.mark.parametrize("n", [1, 5, 20, 100])
+def test_wilson_interval_at_the_edges(n):
+    z2 = 1.96**2
+    # 0/n: [0, z^2 / (n + z^2)]; n/n: [n / (n + z^2), 1]; never a point interval
+    assert wilson_interval(0, n) == (0.0, pytest.approx(z2 / (n + z2), rel=1e-12))
+    assert wilson_interval(n, n) == (pytest.approx(n / (n + z2), rel=1e-12), 1.0)
+    for s in range(n + 1):
+        lo, hi = wilson_interval(s, n)
+        assert 0.0 <= lo <= s / n <= hi <= 1.0 and lo < hi
+    # symmetric: s/n and (n-s)/n mirror each other
+    lo, hi = wilson_interval(n // 3, n)
+    assert wilson_interval(n - n // 3, n) == (pytest.approx(1 - hi, abs=1e-12), pytest.approx(1 - lo, abs=1e-12))
+
+
+def test_wilson_interval_narrows_with_n_and_rejects_bad_input():
+    widths = [np.subtract(*wilson_interval(n // 2, n)[::-1]) for n in (10, 40, 160)]
+    assert widths[0] > widths[1] > widths[2]
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))  # no trials, no information
+    with pytest.raises(ValueError, match="successes: must be <= n"):
+        wilson_interval(3, 2)
+    with pytest.raises(ValueError, match="n: expected an integer >= 0"):
+        wilson_interval(0, -1)
+    with pytest.raises(ValueError, match="successes: expected an integer"):
+        wilson_interval(0.5, 2)
+    with pytest.raises(ValueError, match="z: must be a finite number > 0"):
+        wilson_interval(1, 2, z=0)
+
+
+# ------------------------------------------------------------------------------------------------ perturbations
+
+
+def test_rotvec_to_matrix_matches_scipy():
+    rng = np.random.default_rng(1)
+    v = np.concatenate([rng.normal(0, 1, (50, 3)), rng.normal(0, 1e-8, (5, 3)), np.zeros((1, 3))])
+    R = rotvec_to_matrix(v)
+    np.testing.assert_allclose(R, Rotation.from_rotvec(v).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
+
+
+def test_perturbations_are_in_the_tcp_frame():
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", [0.3, -1.0, 2.0]).as_matrix()
+    T[:3, 3] = (0.1, -0.2, 0.3)
+    t = np.array([[0.01, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    w = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.2]])
+    P = perturbed_poses(T, t, w)
+    np.testing.assert_allclose(P[1], T, atol=1e-15)  # no perturbation: the nominal pose
+    np.testing.assert_allclose(P[0][:3, 3], T[:3, 3] + 0.01 * T[:3, 0], atol=1e-15)  # 1 cm along the closing axis
+    np.testing.assert_allclose(P[0][:3, :3], T[:3, :3], atol=1e-15)
+    # 0.2 rad about the TCP's own approach axis: origin and z stay, x turns within the TCP's x-y plane
+    np.testing.assert_allclose(P[2][:3, 3], T[:3, 3], atol=1e-15)
+    np.testing.assert_allclose(P[2][:3, 2], T[:3, 2], atol=1e-15)
+    assert P[2][:3, 0] @ T[:3, 0] == pytest.approx(math.cos(0.2), abs=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------ the bundled box
+
+
+def _bundled_box() -> ObjectRecord:
+    entry = catalog()["box"]
+    prep = prepare_object(ASSETS / entry["file"], density=entry["density"], rng=np.random.default_rng(0))
+    return ObjectRecord(
+        name=prep.name,
+        vertices=np.asarray(prep.vertices),
+        faces=np.asarray(prep.faces),
+        convex_parts=[(np.asarray(v), np.asarray(f)) for v, f in prep.convex_parts],
+        mass=prep.mass.mass,
+        center_of_mass=np.asarray(prep.mass.center_of_mass),
+        inertia=np.asarray(prep.mass.inertia),
+        stable_poses=np.asarray(prep.stable_transforms),
+        stable_probabilities=np.asarray(prep.stable_probabilities),
+        attrs={},
+    )
+
+
+@pytest.fixture(scope="module")
+def box_scene():
+    """The bundled 50 x 70 x 120 mm box in its most probable stable pose (flat on its 70 x 120 face, 50 mm tall)
+    on a table, with the 2F-85: (record, simulator, body name, world vertices)."""
+    record = _bundled_box()
+    pose = record.stable_poses[0]
+    spec = build_scene_spec([placed_object(record, pose, FRICTION, visual=False)], SupportParams())
+    attach_gripper(spec, GRIPPER)
+    verts = record.vertices @ pose[:3, :3].T + pose[:3, 3]
+    np.testing.assert_allclose(np.ptp(verts, axis=0), [0.07, 0.12, 0.05], atol=1e-9)  # the pose we think it is
+    return record, LiftSimulator(spec.compile(), LiftParams()), object_body_name(0, record.name), verts
+
+
+def _top_down(verts: np.ndarray, along: float) -> tuple[np.ndarray, float]:
+    """Top-down grasp across the box's 70 mm extent (closing along world x, onto its 50 x 120 mm faces), ``along``
+    metres from its centre along its 120 mm axis (world y), TCP 2 cm below the top. Returns (pose, width)."""
+    centre = (verts.max(0) + verts.min(0)) / 2
+    T = np.eye(4)
+    T[:3, 0] = (1.0, 0.0, 0.0)
+    T[:3, 2] = (0.0, 0.0, -1.0)
+    T[:3, 1] = np.cross(T[:3, 2], T[:3, 0])
+    T[:3, 3] = (centre[0], centre[1] + along, verts[:, 2].max() - 0.02)
+    return T, float(np.ptp(verts[:, 0]))
+
+
+def test_edge_grasp_is_less_robust_than_centre_grasp(box_scene):
+    record, sim, body, verts = box_scene
+    geometry = object_geometry(record)
+    params = RobustnessParams(num_perturbations=120)
+    # The box ends 60 mm from its centre; the 22 mm wide pads centred 68 mm out overlap its end by 3 mm. Both
+    # nominal grasps succeed; copies of the edge grasp also slide off the end (no contact, code 3). Both grasps get
+    # the same draws (common random numbers), so the comparison is paired.
+    draws = np.random.default_rng(7).standard_normal((params.num_perturbations, DRAWS_PER_COPY))
+    labels = {}
+    for name, along in (("centre", 0.0), ("edge", 0.068)):
+        T, width = _top_down(verts, along)
+        assert sim.rollout(T, width, body).success
+        labels[name] = grasp_robustness(sim, T, width, body, geometry, FRICTION, draws, params, EpsilonParams(),
+                                        GRIPPER)
+    centre, edge = labels["centre"], labels["edge"]
+    for r in (centre, edge):
+        assert 0.0 <= r.robustness <= 1.0 and r.n == 120
+        assert r.successes == int(np.sum(r.outcomes == 5)) and r.robustness == r.successes / r.n
+        assert r.interval == wilson_interval(r.successes, r.n)
+    assert edge.robustness < centre.robustness  # measured: 40/120 against 60/120
+    assert np.sum(edge.outcomes == 3) > np.sum(centre.outcomes == 3) == 0
+    # Not by chance: exact sign test (McNemar) on the copies where the two disagree. Measured 26 copies succeed only
+    # at the centre, 6 only at the edge: p = 3e-4 that a fair coin splits them that unevenly; other seeds give
+    # 1e-7 to 2e-3.
+    ok_c, ok_e = centre.outcomes == 5, edge.outcomes == 5
+    only_centre, only_edge = int(np.sum(ok_c & ~ok_e)), int(np.sum(ok_e & ~ok_c))
+    assert binomtest(only_centre, only_centre + only_edge, 0.5, alternative="greater").pvalue < 0.01
+
+
+def test_epsilon_from_rollout_and_raycast_contacts_agree_for_a_clean_box_grasp(box_scene):
+    record, sim, body, verts = box_scene
+    geometry = object_geometry(record)
+    T, width = _top_down(verts, 0.0)
+    result, T_placed, T_closed = rollout_with_object_pose(sim, T, width, body)
+    assert result.success and T_closed is not None
+    np.testing.assert_allclose(T_placed, initial_object_pose(sim, body), atol=1e-12)  # the scene at rest
+    source, p, n, f = contact_set((result.contact_points, result.contact_normals, result.contact_fingers),
+                                  T_closed, None)
+    assert source == "rollout" and set(f.tolist()) == {0, 1}
+    # the contacts lie on the mesh (MuJoCo's contact point is midway between the surfaces: within a mm)
+    _, dist, _ = trimesh.proximity.closest_point(geometry.mesh, p)
+    assert dist.max() < 1e-3
+    T_object = np.linalg.inv(initial_object_pose(sim, body)) @ T
+    (rays,) = closing_contacts(geometry.mesh, T_object, GRIPPER)
+    source_r, pr, nr, fr = contact_set(None, np.eye(4), rays)
+    assert source_r == "raycast"
+    eps = EpsilonParams()
+    e_rollout = eps.epsilon(p, n, f, geometry, FRICTION)
+    e_raycast = eps.epsilon(pr, nr, fr, geometry, FRICTION)
+    assert e_rollout > 0 and e_raycast > 0
+    # ... while the same points with every normal tilted 63 degrees the same way (outside the 27 degree cones) are
+    # not in closure: no contact can then pull the object back the other way
+    axis = n[f == 0].mean(axis=0)
+    side = np.cross(axis, (0.0, 0.0, 1.0) if abs(axis[2]) < 0.9 else (1.0, 0.0, 0.0))
+    tilted = n + 2.0 * side / np.linalg.norm(side)
+    tilted /= np.linalg.norm(tilted, axis=1, keepdims=True)
+    assert eps.epsilon(p, tilted, f, geometry, FRICTION) == 0.0
+
+
+def test_object_noise_and_radius(box_scene):
+    record, sim, body, verts = box_scene
+    geometry = object_geometry(record)
+    T, width = _top_down(verts, 0.0)
+    draws = np.random.default_rng(0).standard_normal((4, DRAWS_PER_COPY))
+    # Zero noise everywhere, object noise on: every copy is the nominal grasp (a rebuilt simulator at the same pose)
+    still = RobustnessParams(num_perturbations=4, translation_sigma=0.0, rotation_sigma=0.0, object_noise=True,
+                             object_translation_sigma=0.0, object_rotation_sigma=0.0)
+    r = grasp_robustness(sim, T, width, body, geometry, FRICTION, draws, still, EpsilonParams(), GRIPPER)
+    assert r.robustness == 1.0 and len(set(r.epsilons.tolist())) == 1 and r.epsilons[0] > 0
+    # Moving the box 3 cm along its long axis and up to ~60 degrees about z loses some grasps
+    moved = RobustnessParams(num_perturbations=4, translation_sigma=0.0, rotation_sigma=0.0, object_noise=True,
+                             object_translation_sigma=0.03, object_rotation_sigma=1.0)
+    assert grasp_robustness(sim, T, width, body, geometry, FRICTION, draws, moved, EpsilonParams(),
+                            GRIPPER).robustness < 1.0
+    # Radius along the closing axis = the clearance: the jaws open to width + 10 mm, 5 mm each side; a larger
+    # offset puts a finger onto the box during the approach (the bisection resolves 20 mm / 2^5 = 0.6 mm).
+    radius = grasp_robustness(sim, T, width, body, geometry, FRICTION, draws[:1],
+                              RobustnessParams(num_perturbations=1, radius=True), EpsilonParams(), GRIPPER).radius
+    assert radius.shape == (len(RADIUS_AXES),) and np.isfinite(radius).all()
+    assert 0.004 <= radius[0] <= 0.0056
+    # ... and deeper along the approach axis: the TCP is 30 mm above the table, the fingertips 19 mm below the TCP
+    assert 0.010 <= radius[2] <= 0.012
+    assert np.all(radius[:3] <= 0.02) and np.all(radius[3:] <= 0.5) and np.all(radius >= 0)
+
+
+# ------------------------------------------------------------------------------------------------ the stage
+
+
+def small(out: Path, cache: Path, *sets: str):
+    """The smoke config cut to the two convex objects (no CoACD), two scenes and 6 copies per grasp."""
+    return load_config(
+        PROJECT.schema,
+        Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml",
+        [
+            f"run.out={out}",
+            f"run.cache_dir={cache}",
+            "run.jobs=1",
+            "objects.include=[box, cylinder]",
+            "scenes.num_scenes=2",
+            "robustness.num_perturbations=6",
+            *sets,
+        ],
+    )
+
+
+def tables(out: Path, stage: str) -> dict:
+    return {e.task: pq.read_table(out / stage / e.file) for e in committed(out, stage).values()}
+
+
+@pytest.fixture(scope="module")
+def pipeline_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("robustness")
+    reports = run_pipeline(PROJECT, small(root / "out", root / "cache"), ["robustness"])
+    assert all(r.failed == 0 for r in reports), [r.failures for r in reports]
+    return root
+
+
+def test_robustness_is_a_rate_on_a_real_pipeline_run(pipeline_run):
+    out = pipeline_run / "out"
+    rollouts, robust = tables(out, "rollouts"), tables(out, "robustness")
+    assert set(robust) == set(rollouts) and robust
+    evaluated = 0
+    for sid, t in robust.items():
+        assert t.schema.equals(SCHEMA)
+        r = rollouts[sid]
+        assert t.column("grasp_id").to_pylist() == r.column("grasp_id").to_pylist()
+        ok = r.column("outcome").to_numpy() == 5
+        n = t.column("n").to_numpy()
+        rate = t.column("robustness").to_numpy()
+        assert np.array_equal(n, np.where(ok, 6, 0))
+        # not successful: not measured (NaN), never 0
+        assert np.isnan(rate[~ok]).all() and np.isnan(t.column("pfc").to_numpy()[~ok]).all()
+        lo, hi = t.column("robustness_lo").to_numpy(), t.column("robustness_hi").to_numpy()
+        assert np.all((rate[ok] >= 0) & (rate[ok] <= 1)) and np.all((lo[ok] <= rate[ok]) & (rate[ok] <= hi[ok]))
+        outcomes, eps = t.column("copy_outcomes").to_pylist(), t.column("copy_epsilon").to_pylist()
+        for i in np.flatnonzero(ok):
+            codes = np.array(outcomes[i])
+            assert len(codes) == len(eps[i]) == 6 and set(codes.tolist()) <= set(range(6))
+            assert rate[i] == np.mean(codes == 5)  # a success fraction, not an average of codes
+            assert t.column("pfc")[i].as_py() == np.mean(np.array(eps[i]) > 0.0)
+        for axis in RADIUS_AXES:  # off by default
+            assert np.isnan(t.column(f"radius_{axis}").to_numpy()).all()
+        evaluated += int(ok.sum())
+    assert evaluated > 0
+
+
+def test_same_key_same_bytes_and_independent_of_workers(pipeline_run, tmp_path):
+    cache = pipeline_run / "cache"
+    again = run_pipeline(PROJECT, small(tmp_path / "again", cache), ["robustness"])
+    two = run_pipeline(PROJECT, small(tmp_path / "two", cache, "run.jobs=2"), ["robustness"])
+    assert all(r.failed == 0 for r in again + two)
+    first = {k: v for k, v in shard_hashes(pipeline_run / "out").items() if k.startswith("robustness/")}
+    assert first and first == {k: v for k, v in shard_hashes(tmp_path / "again").items() if k in first}
+    assert first == {k: v for k, v in shard_hashes(tmp_path / "two").items() if k in first}
+
+
+def test_the_key_follows_the_rollout_protocol_and_the_epsilon_model(pipeline_run):
+    out, cache = pipeline_run / "out", pipeline_run / "cache"
+    stage = PROJECT.stage("robustness")
+    base = stage.params(small(out, cache))
+    assert base.lift == small(out, cache).rollouts.lift and base.epsilon == small(out, cache).metrics.epsilon
+    changed = stage.params(small(out, cache, "metrics.epsilon.torsional_friction=0.001"))
+    assert changed != base
+    # the GraspNet label's friction list is not part of it: changing it does not re-run robustness rollouts
+    assert stage.params(small(out, cache, "metrics.closure_frictions=[0.5, 1.0]")) == base
+
+
+def test_config_errors_name_the_key(tmp_path):
+    with pytest.raises(ConfigError, match="robustness.num_perturbations: must be >= 1"):
+        small(tmp_path, tmp_path, "robustness.num_perturbations=0")
+    with pytest.raises(ConfigError, match="robustness.translation_sigma: must be >= 0"):
+        small(tmp_path, tmp_path, "robustness.translation_sigma=-0.001")
+    with pytest.raises(ConfigError, match="robustness.radius_max_rotation: must be in"):
+        small(tmp_path, tmp_path, "robustness.radius_max_rotation=4")
