@@ -156,7 +156,7 @@ class AntipodalParams:
     ``"hemisphere"`` (any downward component: world z of the approach axis < 0) or ``"any"`` (no filter)."""
     max_approach_angle: float = math.pi / 4
     """Largest angle (rad, in (0, pi/2)) between the approach axis and straight down for ``approach="above"``."""
-    width_margin: float = 0.01
+    width_margin: float = 0.02
     """Opening margin (m, >= 0): the gripper opens to ``width + width_margin`` before approaching, so a pair is kept
     only if ``width + width_margin <= gripper.max_width``."""
     surface_offset: float = 1e-5

@@ -911,8 +911,8 @@ def render_card(card: Mapping[str, Any]) -> str:
         "| --- | --- |",
         f"| `grasps.parquet` | one row per grasp, {len(card['schema'])} columns (schema below), row groups of whole "
         "scenes sorted by `scene_id`, `grasp_id` |",
-        f"| `scenes/<scene_id>.h5` | {c['scenes']} scenes: object names and settled poses, cameras (K, camera-to-world), "
-        "RGB, depth, segmentation, point clouds |",
+        f"| `scenes/<scene_id>.h5` | {c['scenes']} scenes: object names and settled poses, cameras (K, "
+        "camera-to-world), RGB, depth, segmentation, point clouds |",
         f"| `objects/<name>.h5` | {c['objects']} objects: mesh, convex parts, mass properties, stable poses |",
     ]
     if any(k.startswith("acronym/") for k in card["files"]):

@@ -145,7 +145,7 @@ class LiftParams:
     """Peak TCP speed (m/s) of the approach (trapezoidal speed profile)."""
     approach_acceleration: float = 10.0
     """Acceleration and deceleration (m/s^2) of the approach profile; the gripper arrives at rest."""
-    width_margin: float = 0.01
+    width_margin: float = 0.02
     """The jaws open to ``width + width_margin`` (m) pad separation before the approach (clipped to the gripper's
     ``[min_width, max_width]``), i.e. ``width_margin / 2`` of clearance per side."""
 

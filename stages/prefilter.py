@@ -130,7 +130,7 @@ class PrefilterParams:
     margin: float = 0.0
     """Clearance (m): a gripper contact with signed distance below this is a collision. 0 flags any penetration;
     > 0 demands that much clearance (conservative); < 0 tolerates penetration up to ``-margin``."""
-    width_margin: float = 0.01
+    width_margin: float = 0.02
     """The gripper is opened to ``width + width_margin`` (m, >= 0; clipped to the gripper's range). Use the same
     value as :attr:`stages.antipodal.AntipodalParams.width_margin` and as the rollout."""
 

@@ -152,7 +152,9 @@ def box_scene():
     attach_gripper(spec, GRIPPER)
     verts = record.vertices @ pose[:3, :3].T + pose[:3, 3]
     np.testing.assert_allclose(np.ptp(verts, axis=0), [0.07, 0.12, 0.05], atol=1e-9)  # the pose we think it is
-    return record, LiftSimulator(spec.compile(), LiftParams()), object_body_name(0, record.name), verts
+    # The figures in these tests assume 5 mm of clearance per side (the default margin is 10 mm per side).
+    sim = LiftSimulator(spec.compile(), LiftParams(width_margin=0.01))
+    return record, sim, object_body_name(0, record.name), verts
 
 
 def _top_down(verts: np.ndarray, along: float) -> tuple[np.ndarray, float]:
