@@ -204,8 +204,15 @@ class CoacdParams:
     seed: int = 0
     """CoACD's own random seed; the decomposition is a pure function of mesh, settings and this seed."""
 
+    refine_excess: float = 0.1
+    """If the parts' total volume exceeds the mesh's by more than this fraction, they bridge a concavity the
+    gripper could reach (a thin-walled cup or bowl: parts filling its cavity make every grasp on its rim collide),
+    so the mesh is decomposed once more with a quarter of the threshold and four times ``max_convex_hull``, and
+    the tighter result kept. 0 turns this off."""
+
     def __post_init__(self) -> None:
         _check_number("threshold", self.threshold, low=0.0, high=1.0, low_open=True)
+        _check_number("refine_excess", self.refine_excess, low=0.0)
         if not _is_int(self.max_convex_hull) or (self.max_convex_hull < 1 and self.max_convex_hull != -1):
             raise ValueError(f"max_convex_hull: must be a positive integer or -1, got {self.max_convex_hull!r}")
         _check_positive_int("preprocess_resolution", self.preprocess_resolution)
@@ -804,7 +811,29 @@ def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tup
     if not kept:
         _log.warning("%s: CoACD returned no usable part, using the convex hull", _label(mesh))
         return [_part_arrays(hull)]
-    return [_part_arrays(part) for part in _sorted_parts(kept)]
+    result = [_part_arrays(part) for part in _sorted_parts(kept)]
+    excess = _volume_excess(mesh, kept)
+    if params.refine_excess > 0 and excess > params.refine_excess:
+        finer = dataclasses.replace(
+            params,
+            threshold=params.threshold / 4,
+            max_convex_hull=-1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull,
+            refine_excess=0.0,
+        )
+        refined = convex_decomposition(mesh, finer)
+        refined_excess = _volume_excess(mesh, [trimesh.Trimesh(v, f) for v, f in refined])
+        _log.info("%s: parts exceed the volume by %.0f%%; refined: %.0f%%", _label(mesh), 100 * excess,
+                  100 * refined_excess)
+        if refined_excess < excess:
+            return refined
+    return result
+
+
+def _volume_excess(mesh: trimesh.Trimesh, parts: list[trimesh.Trimesh]) -> float:
+    """How much the parts' summed volume exceeds the mesh's, as a fraction (0 for an open mesh: not measurable)."""
+    if not mesh.is_watertight or mesh.volume <= 0:
+        return 0.0
+    return float(sum(p.volume for p in parts) / mesh.volume - 1.0)
 
 
 def _is_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh) -> bool:

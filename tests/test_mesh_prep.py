@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -557,3 +558,22 @@ def test_prepare_object_reports_broken_file(tmp_path):
     trimesh.creation.box((100.0, 100.0, 1000.0)).export(path)
     with pytest.raises(InputError, match=r"tower\.obj: absurd size"):
         mp.prepare_object(path, density=DENSITY, rng=np.random.default_rng(0))
+
+
+def test_parts_that_fill_a_cavity_are_refined():
+    # A thin-walled cup: a coarse decomposition bridges the opening and fills the cavity, so a finger could not
+    # go in; the refinement (a quarter of the threshold) keeps the parts close to the true volume.
+    outer = trimesh.creation.cylinder(radius=0.03, height=0.06, sections=24)
+    inner = trimesh.creation.cylinder(radius=0.027, height=0.06, sections=24)
+    inner.apply_translation((0, 0, 0.004))
+    cup = outer.difference(inner, engine="manifold")
+    cup, _ = mp.repair_mesh(cup)
+    assert cup.is_watertight
+    coarse = mp.CoacdParams(threshold=0.2, max_convex_hull=4, resolution=300, mcts_iterations=10, refine_excess=0.0)
+
+    def excess(parts):
+        return sum(trimesh.Trimesh(v, f).volume for v, f in parts) / cup.volume - 1
+
+    bridged = excess(mp.convex_decomposition(cup, coarse))
+    refined = excess(mp.convex_decomposition(cup, dataclasses.replace(coarse, refine_excess=0.1)))
+    assert bridged > 0.1 and refined < bridged
