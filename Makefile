@@ -24,6 +24,7 @@ $(STAMP): pyproject.toml
 
 dataset: $(STAMP) ## Run every stage of CONFIG into OUT (finished work is skipped)
 	$(BIN)/gen run --config $(CONFIG) --out $(OUT) --jobs $(JOBS)
+	@echo "published: $(OUT)/dataset (card: $(OUT)/dataset/card.md, plots: $(OUT)/dataset/plots/)"
 
 test: $(STAMP) ## Run the test suite
 	$(BIN)/python -m pytest -q
@@ -35,7 +36,7 @@ repro: $(STAMP) ## Check byte-reproducibility: jobs 1 vs 2, and kill -9 then res
 	$(BIN)/python -m pipeline.repro --config configs/smoke.yaml --workdir build/repro -- $(BIN)/gen
 
 lint: $(STAMP) ## ruff
-	$(BIN)/ruff check pipeline stages tests bench
+	$(BIN)/ruff check pipeline stages tests bench assets
 
 clean: ## Remove OUT and build products (keeps .venv and the CoACD cache in .cache)
 	rm -rf $(OUT) build

@@ -491,8 +491,8 @@ def obj_text(mesh: trimesh.Trimesh) -> str:
     str
         OBJ file contents with 1-based face indices and no header.
     """
-    lines = ["v %.6f %.6f %.6f" % tuple(v) for v in mesh.vertices.tolist()]
-    lines += ["f %d %d %d" % tuple(f) for f in (mesh.faces + 1).tolist()]
+    lines = [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices.tolist()]
+    lines += [f"f {a} {b} {c}" for a, b, c in (mesh.faces + 1).tolist()]
     return "\n".join(lines) + "\n"
 
 

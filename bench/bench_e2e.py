@@ -7,8 +7,8 @@ Runs, each in a fresh Python process (``--child`` mode of this script, which cal
 2. ``warm``: the same command again: every task is skipped (what a second ``make dataset`` costs);
 3. ``jobs1`` and ``jobs2``: a fresh output folder with the CoACD cache of run 1, ``--jobs 1`` and ``--jobs 2``:
    the compute of the pipeline without the decomposition; their wall-time ratio is the scaling of 2 workers
-   (DESIGN 9: at least 1.8x). ``--rounds R`` repeats this pair R times, interleaved, and keeps each one's best
-   (the machine is shared; the minimum is the least disturbed);
+   (DESIGN 9: at least 1.8x). ``--rounds R`` (default 2) repeats this pair R times, interleaved, and keeps each
+   one's best (the machine is shared; the minimum is the least disturbed);
 4. ``dask`` (unless ``--no-dask``): like ``jobs2`` on a dask.distributed LocalCluster of 2 worker processes.
 
 Reported: per-stage seconds (each stage's wall time in the run, publish included for ``dataset``), grasps labelled
@@ -20,7 +20,14 @@ kernel's high-water mark ``VmHWM`` of each process (``/proc/<pid>/status``), sam
 process tree (the mark only grows, so sampling misses at most a process's last 0.1 s). Also checked: the
 published grasps.parquet has the same sha256 in every run (workers and backend do not change bytes).
 
-Run: ``python bench/bench_e2e.py [--config configs/default.yaml] [--rounds 1] [--no-dask]``; prints a table and
+Also measured: how many cores each run got (CPU seconds of its process tree / its lifetime) and, before and
+after, how much work two spinning processes do compared with one on this machine: on a shared machine other
+jobs take cores, and the pipeline cannot scale better than the machine does. And the scaling the task sizes allow:
+the 1-worker run's task times dealt in task order to 2 workers (as joblib does), stage by stage, plus each stage's
+remaining time (planning, publish), against the 1-worker wall time: a long task dispatched last caps the speedup
+whatever the machine (also given: the same with each stage's tasks dealt longest first).
+
+Run: ``python bench/bench_e2e.py [--config configs/default.yaml] [--rounds 2] [--no-dask]``; prints a table and
 writes ``bench/results.json``. Linux only (``/proc``).
 """
 
@@ -30,6 +37,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
@@ -55,9 +63,10 @@ def child(args: argparse.Namespace) -> None:
     from pipeline.scheduler import run_pipeline
     from stages.cli import PROJECT
 
-    sets = [f"run.out={args.out}", f"run.cache_dir={args.cache}", f"run.jobs={args.jobs}", f"run.backend={args.backend}"]
+    sets = [f"run.out={args.out}", f"run.cache_dir={args.cache}", f"run.jobs={args.jobs}",
+            f"run.backend={args.backend}"]
     cfg = load_config(PROJECT.schema, args.config, sets)
-    start = time.perf_counter()
+    start, start_time = time.perf_counter(), time.time()
     reports = run_pipeline(PROJECT, cfg)
     wall = time.perf_counter() - start
     published = Path(args.out) / "dataset" / "grasps.parquet"
@@ -66,7 +75,7 @@ def child(args: argparse.Namespace) -> None:
         "wall_s": wall,
         "stages": [
             {"stage": r.stage, "tasks": r.total, "ran": r.ran, "skipped": r.skipped, "failed": r.failed,
-             "seconds": r.seconds}
+             "seconds": r.seconds, "task_seconds": _task_seconds(Path(args.out) / r.stage, start_time)}
             for r in reports
         ],
         "grasps": len(t),
@@ -75,6 +84,28 @@ def child(args: argparse.Namespace) -> None:
         "grasps_sha256": sha256_file(published),
     }
     Path(args.result).write_text(json.dumps(result))
+
+
+def _task_seconds(stage_dir: Path, since: float) -> list[float]:
+    """Seconds of each task this run committed in ``stage_dir`` (manifest order = dispatch order, roughly: tasks
+    are dispatched in the stage's task order); none when it ran nothing."""
+    from pipeline.store import Manifest
+
+    manifest = Manifest(stage_dir)
+    if not manifest.path.exists() or manifest.path.stat().st_mtime < since:
+        return []
+    # The stage's tasks in their declared order (sorted ids here: objects by name, scenes by id).
+    entries = sorted((e for e in manifest.entries().values() if e.status == "ok"), key=lambda e: e.task)
+    return [e.seconds for e in entries]
+
+
+def makespan(seconds: list[float], workers: int) -> float:
+    """Finish time of ``seconds`` run in order, each on the first free of ``workers`` (how joblib hands them out)."""
+    free = [0.0] * workers
+    for s in seconds:
+        i = free.index(min(free))
+        free[i] += s
+    return max(free, default=0.0)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -128,21 +159,49 @@ def run_child(name: str, config: str, out: Path, cache: Path, jobs: int, backend
             time.sleep(0.1)
 
     thread = threading.Thread(target=watch, daemon=True)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
     thread.start()
     output, _ = proc.communicate()
+    lifetime = time.perf_counter() - t0
     done.set()
     thread.join()
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         sys.stdout.write(output)
         raise SystemExit(f"bench_e2e: run {name} failed with exit code {proc.returncode}")
     result = json.loads(result_path.read_text())
     # Helper processes (loky's resource tracker, multiprocessing's) hold no task data: not workers.
-    workers = [kb for pid, kb in peaks.items() if kinds[pid] != "parent" and "tracker" not in kinds[pid]]
+    workers = [kb for pid, kb in peaks.items() if kinds[pid] != "parent" and "resource_tracker" not in kinds[pid]]
     result["peak_rss_parent_mb"] = round(peaks.get(proc.pid, 0) / 1024, 1)
     result["peak_rss_worker_mb"] = round(max(workers, default=0) / 1024, 1)
     result["workers_seen"] = len(workers)
+    # CPU seconds of the whole process tree (workers are reaped by the run, so they count): cpu / wall is how many
+    # cores the run actually got.
+    result["cpu_s"] = round(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, 2)
+    result["process_s"] = round(lifetime, 2)
+    result["cores_used"] = round(result["cpu_s"] / lifetime, 2)
     result["jobs"], result["backend"], result["name"] = jobs, backend, name
     return result
+
+
+def _spin(seconds: float) -> int:
+    n, end = 0, time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        n += 1
+    return n
+
+
+def machine_speedup(seconds: float = 3.0) -> float:
+    """Throughput of 2 busy processes over 1 (a pure-Python spin loop): 2.0 on two idle cores, less when other
+    work shares the machine. The pipeline's own 2-worker speedup cannot exceed it."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(2) as pool:
+        list(pool.map(_spin, [0.2, 0.2]))  # start both workers first
+        one = pool.submit(_spin, seconds).result()
+        two = sum(pool.map(_spin, [seconds, seconds]))
+    return round(two / one, 2)
 
 
 def _per_core_hour(count: int, wall: float, jobs: int) -> float:
@@ -152,7 +211,7 @@ def _per_core_hour(count: int, wall: float, jobs: int) -> float:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", default="configs/default.yaml")
-    parser.add_argument("--rounds", type=int, default=1, help="jobs1/jobs2 pairs (best of each is kept)")
+    parser.add_argument("--rounds", type=int, default=2, help="jobs1/jobs2 pairs (best of each is kept)")
     parser.add_argument("--no-dask", action="store_true", help="skip the dask.distributed run")
     parser.add_argument("--results", type=Path, default=RESULTS)
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -173,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
     runs = {}
     print(f"bench_e2e: {args.config} on {os.cpu_count()} cores ({platform.processor() or platform.machine()})",
           flush=True)
+    calibration = [machine_speedup()]
+    print(f"  machine: 2 spinning processes do {calibration[0]}x the work of one", flush=True)
     runs["cold"] = run_child("cold", args.config, WORK / "out_cold", cache, 2)
     print(f"  cold   {runs['cold']['wall_s']:6.1f} s", flush=True)
     runs["warm"] = run_child("warm", args.config, WORK / "out_cold", cache, 2)
@@ -190,6 +251,8 @@ def main(argv: list[str] | None = None) -> int:
         runs["dask"] = run_child("dask", args.config, WORK / "out_dask", cache, 2, backend="dask")
         print(f"  dask   {runs['dask']['wall_s']:6.1f} s", flush=True)
 
+    calibration.append(machine_speedup())
+    print(f"  machine: 2 spinning processes do {calibration[1]}x the work of one", flush=True)
     one, two = runs["jobs1"], runs["jobs2"]
     stage_names = [s["stage"] for s in one["stages"]]
     per_stage = {
@@ -199,8 +262,17 @@ def main(argv: list[str] | None = None) -> int:
     parallel = [n for n in stage_names if next(s["tasks"] for s in one["stages"] if s["stage"] == n) > 1]
     par1 = sum(per_stage[n]["jobs1"] for n in parallel)
     par2 = sum(per_stage[n]["jobs2"] for n in parallel)
+    # What the task sizes allow: each stage's 1-worker task times dealt in order to 2 workers, plus the rest of the
+    # stage's time (planning, publish) as it was; 2 idle cores and free worker start-up assumed.
+    bound_wall = bound_lpt = 0.0
+    for s in one["stages"]:
+        tasks, rest = s["task_seconds"], max(s["seconds"] - sum(s["task_seconds"]), 0.0)
+        bound_wall += makespan(tasks, 2) + rest
+        bound_lpt += makespan(sorted(tasks, reverse=True), 2) + rest
     summary = {
         "scaling_2_vs_1": round(one["wall_s"] / two["wall_s"], 3),
+        "scaling_bound_from_task_order": round(one["wall_s"] / bound_wall, 3),
+        "scaling_bound_longest_first": round(one["wall_s"] / bound_lpt, 3),
         "scaling_2_vs_1_multi_task_stages": round(par1 / par2, 3),
         "grasps": two["grasps"],
         "successes": two["successes"],
@@ -212,6 +284,9 @@ def main(argv: list[str] | None = None) -> int:
         "peak_rss_worker_mb": max(r["peak_rss_worker_mb"] for r in runs.values()),
         "peak_rss_parent_mb": max(r["peak_rss_parent_mb"] for r in runs.values()),
         "same_grasps_parquet": len({r["grasps_sha256"] for r in runs.values()}) == 1,
+        "machine_speedup_2_vs_1": calibration,
+        "cores_used_jobs1": one["cores_used"],
+        "cores_used_jobs2": two["cores_used"],
     }
 
     cols = list(runs)
@@ -227,6 +302,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'wall':<11}" + "".join(f"{runs[c]['wall_s']:9.1f}" for c in cols) + f"{summary['scaling_2_vs_1']:11.2f}")
     print(f"{'peak worker':<11}" + "".join(f"{runs[c]['peak_rss_worker_mb']:8.0f}M" for c in cols))
     print(f"{'peak parent':<11}" + "".join(f"{runs[c]['peak_rss_parent_mb']:8.0f}M" for c in cols))
+    print(f"{'cores used':<11}" + "".join(f"{runs[c]['cores_used']:9.2f}" for c in cols))
     print()
     print(f"grasps: {summary['grasps']} ({summary['successes']} successes), simulated rollouts (incl. perturbed "
           f"copies): {summary['simulated_rollouts']}")
@@ -234,7 +310,12 @@ def main(argv: list[str] | None = None) -> int:
           f"{summary['grasps_per_core_hour_jobs2']} (2 workers), {summary['grasps_per_core_hour_cold']} (cold, 2 "
           f"workers, CoACD included); rollouts per core-hour (2 workers): {summary['rollouts_per_core_hour_jobs2']}")
     print(f"scaling 2 vs 1 worker: {summary['scaling_2_vs_1']}x whole run, "
-          f"{summary['scaling_2_vs_1_multi_task_stages']}x in the stages with more than one task ({', '.join(parallel)})")
+          f"{summary['scaling_2_vs_1_multi_task_stages']}x in the stages with more than one task "
+          f"({', '.join(parallel)})")
+    print(f"what the task sizes and their order allow on 2 idle cores: {summary['scaling_bound_from_task_order']}x "
+          f"(longest task first: {summary['scaling_bound_longest_first']}x)")
+    print(f"the machine itself: 2 processes did {calibration[0]}x / {calibration[1]}x the work of one (before / after; "
+          "2.0 = two idle cores)")
     print(f"peak RSS per worker: {summary['peak_rss_worker_mb']} MB (parent {summary['peak_rss_parent_mb']} MB)")
     print(f"grasps.parquet identical in every run: {summary['same_grasps_parquet']}")
     payload = {

@@ -21,9 +21,9 @@ from pipeline.stage import topological_order  # noqa: E402
 from pipeline.store import Manifest  # noqa: E402
 from stages.config import Config  # noqa: E402
 from stages.dataset import DatasetStage  # noqa: E402
-from stages.objects import ObjectsStage  # noqa: E402
 from stages.grasps import GraspsStage  # noqa: E402
 from stages.metrics import MetricsStage  # noqa: E402
+from stages.objects import ObjectsStage  # noqa: E402
 from stages.robustness import RobustnessStage  # noqa: E402
 from stages.rollouts import RolloutsStage  # noqa: E402
 from stages.scenes import ScenesStage  # noqa: E402

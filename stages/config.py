@@ -6,9 +6,9 @@ import dataclasses
 
 from pipeline.config import RunConfig
 from stages.dataset import DatasetParams
-from stages.objects import ObjectsParams
 from stages.grasps import GraspsParams
 from stages.metrics import MetricsParams
+from stages.objects import ObjectsParams
 from stages.robustness import RobustnessParams
 from stages.rollouts import RolloutsParams
 from stages.scenes import ScenesParams

@@ -46,7 +46,8 @@ nothing was hit**; segmentation is int16 with the object index (0..n-1) for obje
 
 Headless rendering
 ------------------
-Shadows and reflections are off; lighting is a headlight plus one directional light. MuJoCo picks its OpenGL backend from the environment variable ``MUJOCO_GL`` when it is first imported:
+Shadows and reflections are off; lighting is a headlight plus one directional light. MuJoCo picks its OpenGL
+backend from the environment variable ``MUJOCO_GL`` when it is first imported:
 ``egl`` (needs ``libEGL`` and Mesa: Debian/Ubuntu ``libegl1 libgl1-mesa-dri``; Mesa's llvmpipe renders on the
 CPU, no GPU needed) or ``osmesa`` (``libosmesa6``). This module sets ``MUJOCO_GL=egl`` when it is unset and
 imported before mujoco; ``gen`` does the same. Image bytes are deterministic for one GL implementation (Mesa

@@ -309,4 +309,18 @@ def test_label_summary_discrete_and_binned():
     assert s["n"] == 4 and s["histogram"] == {"values": [0.0, 0.25, 1.0], "counts": [1, 2, 1]}
     s = label_summary(np.linspace(0, 1, 101), bins=4, unit_range=True)
     assert s["histogram"]["edges"] == [0.0, 0.25, 0.5, 0.75, 1.0] and sum(s["histogram"]["counts"]) == 101
+    # k/40 fractions: those on an edge go up, never to the neighbour below through rounding
+    s = label_summary(np.arange(41) / 40, bins=20, unit_range=True)
+    assert s["histogram"]["counts"] == [2] * 19 + [3]
     assert label_summary(np.array([np.nan]), bins=4, unit_range=False) == {"n": 0}
+
+
+def test_ranks_average_ties_like_scipy():
+    from scipy.stats import rankdata
+
+    from stages.dataset import _ranks
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 7, 40):
+        x = rng.integers(0, 4, size=n).astype(float)
+        np.testing.assert_allclose(_ranks(x), rankdata(x))
