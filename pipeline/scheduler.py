@@ -270,6 +270,21 @@ def run_pipeline(
     return reports
 
 
+def _finished(calls: list[Any], n_jobs: int) -> Iterator[Any]:
+    """Run joblib ``calls`` and yield their results as they finish, so each shard is committed at once.
+
+    A backend that cannot stream results (joblib's ray backend only returns lists) gets the calls in chunks of
+    a few per worker: a killed run then loses at most one chunk of uncommitted work.
+    """
+    backend = joblib.parallel.get_active_backend()[0]
+    if getattr(backend, "supports_return_generator", False):
+        yield from joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(calls)
+        return
+    chunk = 4 * n_jobs
+    for start in range(0, len(calls), chunk):
+        yield from joblib.Parallel(n_jobs=n_jobs, return_as="list")(calls[start : start + chunk])
+
+
 def _run_stage(
     stage: Stage,
     params: Any,
@@ -301,12 +316,13 @@ def _run_stage(
     if pending:
         stage_dir.mkdir(parents=True, exist_ok=True)
         n_jobs = min(jobs, len(pending))
-        calls = (
+        # Longest first (stable, so equal costs keep the stage's order): the last task to start is a short one.
+        pending.sort(key=lambda p: -p.task.cost)
+        calls = [
             joblib.delayed(execute_task)(stage, p, params, upstream.subset(p.task.needs), stage_dir, ctx)
             for p in pending
-        )
-        results = joblib.Parallel(n_jobs=n_jobs, return_as="generator_unordered")(calls)
-        for entry in results:
+        ]
+        for entry in _finished(calls, n_jobs):
             manifest.append(entry)
             if entry.status == "ok":
                 report.ran += 1

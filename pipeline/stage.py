@@ -33,6 +33,9 @@ class Task:
     """Raw input files the task reads; their bytes (not their paths) enter the key."""
     needs: Mapping[str, Sequence[str]] | None = None
     """Upstream shards the task reads, ``{stage: [task ids]}``; None means every shard of every input stage."""
+    cost: float = 0.0
+    """Relative work estimate (any unit, larger = longer). The scheduler hands out costly tasks first so that
+    workers do not idle behind one long straggler; it never enters the key and never changes a shard."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -612,8 +612,13 @@ class RobustnessStage(Stage):
 
     def tasks(self, params: RobustnessTaskParams, upstream: Upstream) -> list[Task]:
         library = upstream.ids("objects")
+        # Only successful grasps are perturbed, so a scene's work grows with its successes.
         return [
-            Task(id=sid, needs={"rollouts": [sid], "grasps": [sid], "scenes": [sid], "objects": library})
+            Task(
+                id=sid,
+                needs={"rollouts": [sid], "grasps": [sid], "scenes": [sid], "objects": library},
+                cost=float(upstream.meta("rollouts", sid).get("outcomes", {}).get("success", 0)),
+            )
             for sid in upstream.ids("rollouts")
         ]
 

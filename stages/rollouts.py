@@ -91,8 +91,14 @@ class RolloutsStage(Stage):
 
     def tasks(self, params: RolloutsParams, upstream: Upstream) -> list[Task]:
         library = upstream.ids("objects")
+        # The pre-filter's free grasps are the ones simulated (the rest cost nothing unless simulate_rejected).
         return [
-            Task(id=sid, needs={"grasps": [sid], "scenes": [sid], "objects": library}) for sid in upstream.ids("grasps")
+            Task(
+                id=sid,
+                needs={"grasps": [sid], "scenes": [sid], "objects": library},
+                cost=float(upstream.meta("grasps", sid).get("prefilter", {}).get("free", 0)),
+            )
+            for sid in upstream.ids("grasps")
         ]
 
     def run(

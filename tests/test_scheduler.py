@@ -58,6 +58,24 @@ def test_each_task_gets_its_own_rng(tmp_path):
     assert len({d.tobytes() for d in draws}) == 4
 
 
+def test_costly_tasks_start_first_and_cost_stays_out_of_the_key(tmp_path):
+    import dataclasses
+
+    from pipeline.scheduler import plan
+    from pipeline.stage import Upstream
+
+    run_pipeline(TOY, config(tmp_path / "o", "run.jobs=1", "numbers.ids=[a, ccc, bb, dddd, e]"))
+    lines = (tmp_path / "o" / "numbers" / "manifest.jsonl").read_text().splitlines()
+    assert [json.loads(line)["task"] for line in lines] == ["dddd", "ccc", "bb", "a", "e"]
+
+    stage = next(s for s in TOY.stages if s.name == "numbers")
+    params = TOY.schema().numbers
+    free = type(stage)()
+    free.tasks = lambda p, u: [dataclasses.replace(t, cost=0.0) for t in type(stage).tasks(stage, p, u)]
+    empty = Upstream(tmp_path / "o", {})
+    assert [p.key for p in plan(stage, params, empty)] == [p.key for p in plan(free, params, empty)]
+
+
 def test_changed_param_reruns_that_stage_and_downstream_only(tmp_path):
     out = tmp_path / "o"
     run_pipeline(TOY, config(out, "run.jobs=1"))
@@ -154,6 +172,14 @@ def test_dask_backend_gives_the_same_bytes(tmp_path):
     assert shard_hashes(tmp_path / "a") == shard_hashes(tmp_path / "d")
 
 
+def test_ray_backend_gives_the_same_bytes(tmp_path):
+    """Only where the optional ray extra is installed (``pip install -e '.[ray]'``); CI has dask, not ray."""
+    pytest.importorskip("ray")
+    run_pipeline(TOY, config(tmp_path / "a", "run.jobs=1"))
+    run_pipeline(TOY, config(tmp_path / "r", "run.jobs=2", "run.backend=ray"))
+    assert shard_hashes(tmp_path / "a") == shard_hashes(tmp_path / "r")
+
+
 def test_publish_runs_after_the_stage_with_its_current_shards(tmp_path):
     from pipeline.io import read_h5
 
@@ -164,3 +190,29 @@ def test_publish_runs_after_the_stage_with_its_current_shards(tmp_path):
     assert (out / "published" / "total.txt").read_text() == f"{total!r} from 4 shards\n"
     run_pipeline(TOY, config(out, "run.jobs=1", "sums.scale=3"))
     assert (out / "published" / "total.txt").read_text() == f"{total / 2 * 3!r} from 4 shards\n"
+
+
+def test_backends_without_streaming_get_the_calls_in_chunks(monkeypatch):
+    """Joblib's ray backend cannot stream results; the multiprocessing backend stands in for it here."""
+    import joblib
+
+    from pipeline import scheduler
+
+    batches = []
+    real = joblib.Parallel
+
+    class Counting(real):
+        def __call__(self, iterable):
+            batch = list(iterable)
+            batches.append((len(batch), self.return_as))
+            return super().__call__(batch)
+
+    monkeypatch.setattr(scheduler.joblib, "Parallel", Counting)
+    calls = [joblib.delayed(abs)(-i) for i in range(19)]
+    with joblib.parallel_config(backend="multiprocessing"):
+        assert sorted(scheduler._finished(calls, 2)) == list(range(19))
+    assert batches == [(8, "list"), (8, "list"), (3, "list")]
+    batches.clear()
+    with joblib.parallel_config(backend="loky"):
+        assert sorted(scheduler._finished(calls, 2)) == list(range(19))
+    assert batches == [(19, "generator_unordered")]

@@ -53,7 +53,8 @@ class NumbersStage(Stage):
 
     def tasks(self, params: NumbersParams, upstream: Upstream) -> list[Task]:
         inputs = (params.input_file,) if params.input_file else ()
-        return [Task(id=i, inputs=inputs) for i in params.ids]
+        # Longer ids claim more work, so tests can see the scheduler's longest-first order.
+        return [Task(id=i, inputs=inputs, cost=len(i)) for i in params.ids]
 
     def run(self, task, params, upstream, rng, out: Path, ctx: RunContext):
         if task.id.startswith("bad"):
