@@ -22,7 +22,7 @@ import joblib
 from pipeline.config import RunConfig
 from pipeline.errors import ConfigError, StageError
 from pipeline.keys import key_parts, rng_for_key, sha256_file, task_key
-from pipeline.stage import RunContext, Stage, Task, Upstream, topological_order
+from pipeline.stage import RunContext, Stage, Task, Upstream, stage_waves, topological_order
 from pipeline.store import Entry, Manifest, RunLock, atomic_path, shard_path
 
 BACKENDS = ("loky", "dask", "ray")
@@ -260,14 +260,14 @@ def run_pipeline(
     jobs = resolve_jobs(run.jobs)
     order = topological_order(project.stages, targets)
     notify = progress or (lambda event, **info: None)
-    reports = []
+    reports: dict[str, StageReport] = {}
     current: dict[str, set[str]] = {}
     with RunLock(out), parallel_backend(run, jobs):
-        for stage in order:
-            report, keys = _run_stage(stage, stage.params(config), out, ctx, jobs, retry_failed, notify, current)
-            current[stage.name] = keys
-            reports.append(report)
-    return reports
+        for wave in stage_waves(order):
+            for stage_run in _run_wave(wave, config, out, ctx, jobs, retry_failed, notify, current):
+                current[stage_run.stage.name] = stage_run.keys
+                reports[stage_run.stage.name] = stage_run.report
+    return [reports[s.name] for s in order]
 
 
 def _finished(calls: list[Any], n_jobs: int) -> Iterator[Any]:
@@ -285,19 +285,28 @@ def _finished(calls: list[Any], n_jobs: int) -> Iterator[Any]:
         yield from joblib.Parallel(n_jobs=n_jobs, return_as="list")(calls[start : start + chunk])
 
 
-def _run_stage(
-    stage: Stage,
-    params: Any,
-    out: Path,
-    ctx: RunContext,
-    jobs: int,
-    retry_failed: bool,
-    notify: Any,
-    current: dict[str, set[str]],
-) -> tuple[StageReport, set[str]]:
-    start = time.perf_counter()
-    stage_dir = out / stage.name
-    manifest = Manifest(stage_dir)
+@dataclasses.dataclass
+class _StageRun:
+    """One stage's share of a wave: what it plans, what is left to run, and its report."""
+
+    stage: Stage
+    params: Any
+    planned: list[PlannedTask]
+    pending: list[PlannedTask]
+    report: StageReport
+    manifest: Manifest
+    upstream: Upstream
+
+    @property
+    def keys(self) -> set[str]:
+        return {p.key for p in self.planned}
+
+
+def _start_stage(
+    stage: Stage, params: Any, out: Path, retry_failed: bool, current: dict[str, set[str]]
+) -> _StageRun:
+    """Plan a stage and sort its tasks into committed (skipped), remembered failures and pending."""
+    manifest = Manifest(out / stage.name)
     upstream = upstream_view(out, stage, current)
     planned = plan(stage, params, upstream)
     report = StageReport(stage.name, total=len(planned))
@@ -312,32 +321,72 @@ def _run_stage(
             report.failures.append((p.task.id, entry.error or "failed"))
         else:
             pending.append(p)
-    notify("stage_start", stage=stage.name, total=len(planned), skipped=report.skipped, remembered=report.failed)
-    if pending:
-        stage_dir.mkdir(parents=True, exist_ok=True)
-        n_jobs = min(jobs, len(pending))
-        # Longest first (stable, so equal costs keep the stage's order): the last task to start is a short one.
-        pending.sort(key=lambda p: -p.task.cost)
+    return _StageRun(stage, params, planned, pending, report, manifest, upstream)
+
+
+def _run_wave(
+    wave: list[Stage],
+    config: Any,
+    out: Path,
+    ctx: RunContext,
+    jobs: int,
+    retry_failed: bool,
+    notify: Any,
+    current: dict[str, set[str]],
+) -> list[_StageRun]:
+    """Run the pending tasks of stages that do not read each other through one pool of workers.
+
+    Tasks go out longest first (:attr:`Task.cost`; stable, so equal costs keep stage and task order), and a
+    stage is published and reported as soon as its last task is committed, while the others go on.
+    """
+    start = time.perf_counter()
+    runs = [_start_stage(stage, stage.params(config), out, retry_failed, current) for stage in wave]
+    left = {r.stage.name: len(r.pending) for r in runs}
+    for r in runs:
+        notify("stage_start", stage=r.stage.name, total=len(r.planned), skipped=r.report.skipped,
+               remembered=r.report.failed)
+    for r in runs:
+        if not r.pending:
+            _finish_stage(r, out, current, start, notify)
+    work = [(r, p) for r in runs for p in r.pending]
+    if work:
+        work.sort(key=lambda rp: -rp[1].task.cost)
+        owner = {p.key: r for r, p in work}
+        for r in runs:
+            if r.pending:
+                (out / r.stage.name).mkdir(parents=True, exist_ok=True)
         calls = [
-            joblib.delayed(execute_task)(stage, p, params, upstream.subset(p.task.needs), stage_dir, ctx)
-            for p in pending
+            joblib.delayed(execute_task)(
+                r.stage, p, r.params, r.upstream.subset(p.task.needs), out / r.stage.name, ctx
+            )
+            for r, p in work
         ]
-        for entry in _finished(calls, n_jobs):
-            manifest.append(entry)
+        for entry in _finished(calls, min(jobs, len(work))):
+            r = owner[entry.key]
+            r.manifest.append(entry)
             if entry.status == "ok":
-                report.ran += 1
+                r.report.ran += 1
             else:
-                report.failed += 1
-                report.failures.append((entry.task, entry.error or "failed"))
-            notify("task_done", stage=stage.name, task=entry.task, ok=entry.status == "ok")
+                r.report.failed += 1
+                r.report.failures.append((entry.task, entry.error or "failed"))
+            notify("task_done", stage=r.stage.name, task=entry.task, ok=entry.status == "ok")
+            left[r.stage.name] -= 1
+            if left[r.stage.name] == 0:
+                _finish_stage(r, out, current, start, notify)
+    return runs
+
+
+def _finish_stage(r: _StageRun, out: Path, current: dict[str, set[str]], start: float, notify: Any) -> None:
+    """Publish a stage whose tasks are all settled, and report it."""
+    stage = r.stage
     if type(stage).publish is not Stage.publish:
         view = upstream_view(out, stage, current)
-        own = {e.task: e for k, e in committed(out, stage.name).items() if k in {p.key for p in planned}}
-        stage.publish(params, Upstream(out, {**{d: view_entries(view, d) for d in stage.inputs}, stage.name: own}), out)
-    report.seconds = time.perf_counter() - start
-    report.failures.sort()
-    notify("stage_end", stage=stage.name, report=report)
-    return report, {p.key for p in planned}
+        own = {e.task: e for k, e in committed(out, stage.name).items() if k in r.keys}
+        stage.publish(r.params, Upstream(out, {**{d: view_entries(view, d) for d in stage.inputs}, stage.name: own}),
+                      out)
+    r.report.seconds = time.perf_counter() - start
+    r.report.failures.sort()
+    notify("stage_end", stage=stage.name, report=r.report)
 
 
 # --------------------------------------------------------------------------------------------------------------

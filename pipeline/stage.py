@@ -178,6 +178,18 @@ def topological_order(stages: Sequence[Stage], targets: Sequence[str] | None = N
     return [by_name[n] for n in order if n in wanted]
 
 
+def stage_waves(order: Sequence[Stage]) -> list[list[Stage]]:
+    """Split a :func:`topological_order` into waves: stages whose inputs all lie in earlier waves.
+
+    The stages of one wave do not read each other, so their tasks can share the workers.
+    """
+    by_name = {s.name: s for s in order}
+    waves: dict[int, list[Stage]] = {}
+    for s in order:
+        waves.setdefault(_depth(s.name, by_name), []).append(s)
+    return [waves[d] for d in sorted(waves)]
+
+
 def _depth(name: str, by_name: Mapping[str, Stage]) -> int:
-    deps = by_name[name].inputs
+    deps = [d for d in by_name[name].inputs if d in by_name]
     return 0 if not deps else 1 + max(_depth(d, by_name) for d in deps)

@@ -12,7 +12,7 @@ from pipeline.errors import LockError, StageError
 from pipeline.keys import sha256_file
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import run_pipeline, status
-from pipeline.stage import topological_order
+from pipeline.stage import Task, topological_order
 from pipeline.store import Manifest, RunLock
 
 
@@ -216,3 +216,56 @@ def test_backends_without_streaming_get_the_calls_in_chunks(monkeypatch):
     with joblib.parallel_config(backend="loky"):
         assert sorted(scheduler._finished(calls, 2)) == list(range(19))
     assert batches == [(19, "generator_unordered")]
+
+
+class _Squares(TOY.stage("sums").__class__):
+    """A second reader of ``numbers``, independent of ``sums``: both share a wave."""
+
+    name = "squares"
+
+    def params(self, config):
+        return config.sums
+
+    def tasks(self, params, upstream):
+        return [Task(id=f"sq_{i}", needs={"numbers": [i]}, cost=1.0) for i in upstream.ids("numbers")]
+
+    def run(self, task, params, upstream, rng, out, ctx):
+        from pipeline.io import read_h5, write_h5
+
+        x = read_h5(upstream.path("numbers", task.needs["numbers"][0]))["x"]
+        write_h5(out, {"x2": x * x})
+        return {}
+
+    def publish(self, params, shards, dest):
+        (dest / "squares.txt").write_text(f"{len(shards.ids('squares'))} squared\n")
+
+
+def test_independent_stages_share_a_wave_and_give_the_same_bytes(tmp_path):
+    import dataclasses
+
+    from pipeline.stage import stage_waves
+
+    project = dataclasses.replace(TOY, stages=(*TOY.stages, _Squares()))
+    assert [[s.name for s in w] for w in stage_waves(topological_order(project.stages))] == [
+        ["numbers"],
+        ["sums", "squares"],
+    ]
+    assert [[s.name for s in w] for w in stage_waves(topological_order(project.stages, ["sums"]))] == [
+        ["numbers"],
+        ["sums"],
+    ]
+    events = []
+    together = run_pipeline(project, config(tmp_path / "w", "run.jobs=2"), progress=lambda e, **i: events.append(
+        (e, i["stage"])))
+    assert [r.stage for r in together] == ["numbers", "sums", "squares"]
+    assert {r.stage: r.ran for r in together} == {"numbers": 4, "sums": 1, "squares": 4}
+    assert (tmp_path / "w" / "squares.txt").read_text() == "4 squared\n"
+    assert (tmp_path / "w" / "published" / "total.txt").exists()
+    # both stages of the wave start before either ends
+    starts = [i for i, (e, s) in enumerate(events) if e == "stage_start" and s in ("sums", "squares")]
+    ends = [i for i, (e, s) in enumerate(events) if e == "stage_end" and s in ("sums", "squares")]
+    assert max(starts) < min(ends)
+    # one stage at a time (by targets) gives the same shards
+    run_pipeline(project, config(tmp_path / "s", "run.jobs=1"), targets=["sums"])
+    run_pipeline(project, config(tmp_path / "s", "run.jobs=1"), targets=["squares"])
+    assert shard_hashes(tmp_path / "w") == shard_hashes(tmp_path / "s")
