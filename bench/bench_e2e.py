@@ -23,9 +23,10 @@ published grasps.parquet has the same sha256 in every run (workers and backend d
 Also measured: how many cores each run got (CPU seconds of its process tree / its lifetime) and, before and
 after, how much work two spinning processes do compared with one on this machine: on a shared machine other
 jobs take cores, and the pipeline cannot scale better than the machine does. And the scaling the task sizes allow:
-the 1-worker run's task times dealt in task order to 2 workers (as joblib does), stage by stage, plus each stage's
-remaining time (planning, publish), against the 1-worker wall time: a long task dispatched last caps the speedup
-whatever the machine (also given: the same with each stage's tasks dealt longest first).
+the 1-worker run's task times dealt in task order to 2 workers, wave by wave (stages that do not read each other
+run as one wave and are one row of the table), plus each wave's remaining time (planning, publish), against the
+1-worker wall time: a long task dispatched last caps the speedup whatever the machine (also given: the same with
+each wave's tasks dealt longest first, which the scheduler approximates with its tasks' cost estimates).
 
 Run: ``python bench/bench_e2e.py [--config configs/default.yaml] [--rounds 2] [--no-dask]``; prints a table and
 writes ``bench/results.json``. Linux only (``/proc``).
@@ -65,6 +66,8 @@ def child(args: argparse.Namespace) -> None:
 
     sets = [f"run.out={args.out}", f"run.cache_dir={args.cache}", f"run.jobs={args.jobs}",
             f"run.backend={args.backend}"]
+    from pipeline.stage import stage_waves, topological_order
+
     cfg = load_config(PROJECT.schema, args.config, sets)
     start, start_time = time.perf_counter(), time.time()
     reports = run_pipeline(PROJECT, cfg)
@@ -73,6 +76,7 @@ def child(args: argparse.Namespace) -> None:
     t = pq.read_table(published, columns=["outcome", "simulated", "robustness_n"])
     result = {
         "wall_s": wall,
+        "waves": [[st.name for st in wave] for wave in stage_waves(topological_order(PROJECT.stages))],
         "stages": [
             {"stage": r.stage, "tasks": r.total, "ran": r.ran, "skipped": r.skipped, "failed": r.failed,
              "seconds": r.seconds, "task_seconds": _task_seconds(Path(args.out) / r.stage, start_time)}
@@ -254,19 +258,27 @@ def main(argv: list[str] | None = None) -> int:
     calibration.append(machine_speedup())
     print(f"  machine: 2 spinning processes do {calibration[1]}x the work of one", flush=True)
     one, two = runs["jobs1"], runs["jobs2"]
-    stage_names = [s["stage"] for s in one["stages"]]
-    per_stage = {
-        name: {run: next(s["seconds"] for s in runs[run]["stages"] if s["stage"] == name) for run in runs}
-        for name in stage_names
-    }
-    parallel = [n for n in stage_names if next(s["tasks"] for s in one["stages"] if s["stage"] == n) > 1]
+    # Stages of one wave share the workers and each reports seconds from the wave's start: a wave is one row.
+    waves = one["waves"]
+    rows = {"+".join(w): w for w in waves}
+
+    def wave_seconds(run: str, wave: list[str]) -> float:
+        return max(s["seconds"] for s in runs[run]["stages"] if s["stage"] in wave)
+
+    def wave_tasks(run: str, wave: list[str]) -> list[float]:
+        return [t for s in runs[run]["stages"] if s["stage"] in wave for t in s["task_seconds"]]
+
+    per_stage = {name: {run: wave_seconds(run, wave) for run in runs} for name, wave in rows.items()}
+    stage_names = list(rows)
+    parallel = [n for n, w in rows.items() if sum(s["tasks"] for s in one["stages"] if s["stage"] in w) > 1]
     par1 = sum(per_stage[n]["jobs1"] for n in parallel)
     par2 = sum(per_stage[n]["jobs2"] for n in parallel)
-    # What the task sizes allow: each stage's 1-worker task times dealt in order to 2 workers, plus the rest of the
-    # stage's time (planning, publish) as it was; 2 idle cores and free worker start-up assumed.
+    # What the task sizes allow: each wave's 1-worker task times dealt in order to 2 workers, plus the rest of the
+    # wave's time (planning, publish) as it was; 2 idle cores and free worker start-up assumed.
     bound_wall = bound_lpt = 0.0
-    for s in one["stages"]:
-        tasks, rest = s["task_seconds"], max(s["seconds"] - sum(s["task_seconds"]), 0.0)
+    for name, wave in rows.items():
+        tasks = wave_tasks("jobs1", wave)
+        rest = max(per_stage[name]["jobs1"] - sum(tasks), 0.0)
         bound_wall += makespan(tasks, 2) + rest
         bound_lpt += makespan(sorted(tasks, reverse=True), 2) + rest
     summary = {
@@ -290,19 +302,21 @@ def main(argv: list[str] | None = None) -> int:
     }
 
     cols = list(runs)
-    header = f"{'stage':<11}" + "".join(f"{c:>9}" for c in cols) + f"{'1/2 ratio':>11}"
+    width = max(11, *(len(n) + 1 for n in stage_names))
+    header = f"{'stage':<{width}}" + "".join(f"{c:>9}" for c in cols) + f"{'1/2 ratio':>11}"
     print()
     print(header)
     print("-" * len(header))
     for name in stage_names:
         cells = "".join(f"{per_stage[name][c]:9.1f}" for c in cols)
         ratio = per_stage[name]["jobs1"] / per_stage[name]["jobs2"] if per_stage[name]["jobs2"] > 0 else float("nan")
-        print(f"{name:<11}{cells}{ratio:11.2f}")
+        print(f"{name:<{width}}{cells}{ratio:11.2f}")
     print("-" * len(header))
-    print(f"{'wall':<11}" + "".join(f"{runs[c]['wall_s']:9.1f}" for c in cols) + f"{summary['scaling_2_vs_1']:11.2f}")
-    print(f"{'peak worker':<11}" + "".join(f"{runs[c]['peak_rss_worker_mb']:8.0f}M" for c in cols))
-    print(f"{'peak parent':<11}" + "".join(f"{runs[c]['peak_rss_parent_mb']:8.0f}M" for c in cols))
-    print(f"{'cores used':<11}" + "".join(f"{runs[c]['cores_used']:9.2f}" for c in cols))
+    walls = "".join(f"{runs[c]['wall_s']:9.1f}" for c in cols)
+    print(f"{'wall':<{width}}" + walls + f"{summary['scaling_2_vs_1']:11.2f}")
+    print(f"{'peak worker':<{width}}" + "".join(f"{runs[c]['peak_rss_worker_mb']:8.0f}M" for c in cols))
+    print(f"{'peak parent':<{width}}" + "".join(f"{runs[c]['peak_rss_parent_mb']:8.0f}M" for c in cols))
+    print(f"{'cores used':<{width}}" + "".join(f"{runs[c]['cores_used']:9.2f}" for c in cols))
     print()
     print(f"grasps: {summary['grasps']} ({summary['successes']} successes), simulated rollouts (incl. perturbed "
           f"copies): {summary['simulated_rollouts']}")
@@ -310,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{summary['grasps_per_core_hour_jobs2']} (2 workers), {summary['grasps_per_core_hour_cold']} (cold, 2 "
           f"workers, CoACD included); rollouts per core-hour (2 workers): {summary['rollouts_per_core_hour_jobs2']}")
     print(f"scaling 2 vs 1 worker: {summary['scaling_2_vs_1']}x whole run, "
-          f"{summary['scaling_2_vs_1_multi_task_stages']}x in the stages with more than one task "
+          f"{summary['scaling_2_vs_1_multi_task_stages']}x in the waves with more than one task "
           f"({', '.join(parallel)})")
     print(f"what the task sizes and their order allow on 2 idle cores: {summary['scaling_bound_from_task_order']}x "
           f"(longest task first: {summary['scaling_bound_longest_first']}x)")
