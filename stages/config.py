@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.config import RunConfig
+from pipeline.config import RunConfig, check
 from stages.dataset import DatasetParams
 from stages.grasps import GraspsParams
 from stages.metrics import MetricsParams
@@ -34,3 +34,21 @@ class Config:
     """Stage 6: Ferrari-Canny epsilon per grasp and the minimum friction for force closure."""
     dataset: DatasetParams = dataclasses.field(default_factory=DatasetParams)
     """Stage 7: the published dataset (merged grasps.parquet, scenes, objects, ACRONYM export, card and plots)."""
+
+    def __post_init__(self) -> None:
+        # The pre-filter stands in for the rollout's approach: it must check the path the rollout will take.
+        lift, prefilter = self.rollouts.lift, self.grasps.prefilter
+        check(
+            "grasps.prefilter.approach_distance",
+            prefilter.approach_distance == lift.approach_distance,
+            f"equal rollouts.lift.approach_distance ({lift.approach_distance}): the pre-filter checks the approach the "
+            "rollout takes",
+            prefilter.approach_distance,
+        )
+        check(
+            "grasps.prefilter.width_margin",
+            prefilter.width_margin == lift.width_margin,
+            f"equal rollouts.lift.width_margin ({lift.width_margin}): the pre-filter checks the jaws as the rollout "
+            "opens them",
+            prefilter.width_margin,
+        )

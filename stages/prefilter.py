@@ -121,12 +121,12 @@ def _check_widths(widths: object, n: int) -> np.ndarray:
 class PrefilterParams:
     """Settings of the static collision pre-filter."""
 
-    approach_distance: float = 0.1
+    approach_distance: float = 0.05
     """Distance (m, >= 0) of the pre-grasp pose behind the grasp pose, along the TCP's -z (the gripper starts
-    there and moves along +z to the grasp)."""
+    there and moves along +z to the grasp). In a config it must equal ``rollouts.lift.approach_distance``."""
     num_approach_samples: int = 11
     """Poses checked along the approach line, evenly spaced from the pre-grasp pose to the grasp pose (both
-    included); 1 checks the grasp pose only. Default: 1 cm spacing over 0.1 m."""
+    included); 1 checks the grasp pose only. Default: 5 mm spacing over 0.05 m."""
     margin: float = 0.0
     """Clearance (m): a gripper contact with signed distance below this is a collision. 0 flags any penetration;
     > 0 demands that much clearance (conservative); < 0 tolerates penetration up to ``-margin``."""
