@@ -19,9 +19,11 @@ Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
      (true by construction up to round-off) and ``angle(p1 - p2, n2) <= atan(mu)`` with ``n2`` the inward normal
      at ``p2``;
    - ``width_too_small``: ``width = |p2 - p1| >= max(gripper.min_width, surface_offset)``;
-   - ``width_too_large``: ``width + width_margin <= gripper.max_width``. **Margin convention:** the gripper is
-     opened to ``width + width_margin`` before it approaches (width adaptation: no wider than needed, so the open
-     fingers fit between neighbours) and closes from there, so that opening must be reachable.
+   - ``width_too_large``: ``width + min_clearance <= gripper.max_width``. **Margin convention:** the gripper is
+     opened to ``min(width + width_margin, gripper.max_width)`` before it approaches (width adaptation: no wider
+     than needed, so the open fingers fit between neighbours) and closes from there; a pair is kept when the full
+     opening leaves at least ``min_clearance`` beyond its width (``min_clearance / 2`` per side), so a 70 mm block
+     is still graspable in an 85 mm gripper although 70 mm + ``width_margin`` exceeds the stroke.
 
 5. **Orientations.** The TCP frame has ``x = (p2 - p1) / width`` (``p1`` is the *left* pad's contact, on -x;
    ``p2`` the *right* pad's, on +x: :mod:`stages.grippers`). ``num_orientations`` approach axes ``z`` perpendicular
@@ -46,7 +48,7 @@ Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
    are deterministic (no random draws): ``num_depths = 1`` reproduces the contact-centred TCP exactly.
 
 Every kept candidate satisfies: both contacts on the surface, ``max(min_width, surface_offset) <= width <=
-max_width - width_margin``, the contact line inside both friction cones, and both contacts on the pad faces
+max_width - min_clearance``, the contact line inside both friction cones, and both contacts on the pad faces
 (``|z| <= pad_length / 2 - depth_margin`` in the TCP frame; ``y = 0``).
 
 Speed: one ray per candidate pair, cast with ``mesh.ray.intersects_first``; everything else is vectorised numpy.
@@ -157,8 +159,12 @@ class AntipodalParams:
     max_approach_angle: float = math.pi / 4
     """Largest angle (rad, in (0, pi/2)) between the approach axis and straight down for ``approach="above"``."""
     width_margin: float = 0.02
-    """Opening margin (m, >= 0): the gripper opens to ``width + width_margin`` before approaching, so a pair is kept
-    only if ``width + width_margin <= gripper.max_width``."""
+    """Opening margin (m, >= 0): the gripper opens to ``min(width + width_margin, gripper.max_width)`` before
+    approaching (``width_margin / 2`` of clearance per side where the stroke allows)."""
+    min_clearance: float = 0.01
+    """Smallest opening beyond the contact width (m, in ``[0, width_margin]``) a kept pair needs: pairs with
+    ``width + min_clearance <= gripper.max_width`` are kept. With the 2F-85 (85 mm) and the defaults, widths up to
+    65 mm open by the full 20 mm margin and widths of 65-75 mm open fully, with 5-10 mm to spare."""
     surface_offset: float = 1e-5
     """How far (m, > 0) inside the surface each ray starts, so that it does not hit its own face again. Far above
     Embree's float32 resolution at object scale (~1e-8 m for a 0.1 m object), far below any wall thickness. Widths
@@ -186,6 +192,7 @@ class AntipodalParams:
         _check_number("max_approach_angle", self.max_approach_angle, low=0.0, high=math.pi / 2, low_open=True,
                       high_open=True)
         _check_number("width_margin", self.width_margin, low=0.0)
+        _check_number("min_clearance", self.min_clearance, low=0.0, high=self.width_margin)
         _check_number("surface_offset", self.surface_offset, low=0.0, low_open=True)
         _check_positive_int("num_depths", self.num_depths)
         _check_number("depth_margin", self.depth_margin, low=0.0)
@@ -391,9 +398,9 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     _check_rng(rng)
     T_world = np.eye(4) if object_pose is None else _check_object_pose(object_pose)
     min_width = max(gripper.min_width, params.surface_offset)
-    max_width = gripper.max_width - params.width_margin
+    max_width = gripper.max_width - params.min_clearance
     if max_width < min_width:
-        raise ValueError(f"params.width_margin: {params.width_margin} m leaves no opening for gripper "
+        raise ValueError(f"params.min_clearance: {params.min_clearance} m leaves no opening for gripper "
                          f"{gripper.name!r} (max_width {gripper.max_width} m)")
     depths = grasp_depths(gripper, params)
     if not uses_embree(mesh):

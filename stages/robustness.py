@@ -109,8 +109,9 @@ class RobustnessParams:
     """Perturbed copies rolled out per successful grasp."""
     translation_sigma: float = 0.005
     """Standard deviation (m) of the TCP translation error along each TCP axis. Compare it with the jaws' clearance,
-    ``rollouts.lift.width_margin / 2`` per side (5 mm by default): the approach labels any touch of the target a
-    collision (code 1), so copies offset by more than that along the closing axis fail."""
+    ``rollouts.lift.width_margin / 2`` per side (10 mm by default; less for widths near the stroke): a copy offset
+    by more than that along the closing axis lands a finger on the target at placement (code 1) or pushes it during
+    the approach (code 1 beyond ``rollouts.lift.max_target_shift``)."""
     rotation_sigma: float = math.radians(5.0)
     """Standard deviation (rad) of each component of the TCP rotation error (a rotation vector in the TCP frame)."""
     object_noise: bool = False

@@ -69,7 +69,8 @@ def _off_face(mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray) -> f
     ("num_surface_points", 0), ("num_surface_points", 2.5), ("rays_per_point", -1), ("friction", 0.0),
     ("friction", float("nan")), ("num_orientations", 0), ("approach", "below"), ("max_approach_angle", 0.0),
     ("max_approach_angle", math.pi / 2), ("width_margin", -0.001), ("surface_offset", 0.0), ("num_depths", 0),
-    ("num_depths", 1.0), ("depth_margin", -0.001), ("depth_margin", float("inf")),
+    ("num_depths", 1.0), ("depth_margin", -0.001), ("depth_margin", float("inf")), ("min_clearance", -0.001),
+    ("min_clearance", 0.03),  # more than width_margin (0.02)
 ])
 def test_params_reject_bad_values_naming_the_key(key, value):
     with pytest.raises(ValueError, match=f"^{key}: "):
@@ -94,8 +95,8 @@ def test_bad_arguments_raise_value_error():
         A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(), 0)
     with pytest.raises(ValueError, match="^object_pose: "):
         A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(), rng, object_pose=np.diag([1.0, 1.0, -1.0, 1.0]))
-    with pytest.raises(ValueError, match="width_margin"):
-        A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(width_margin=0.1), rng)
+    with pytest.raises(ValueError, match="min_clearance"):
+        A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(width_margin=0.1, min_clearance=0.1), rng)
     with pytest.raises(ValueError, match="depth_margin"):
         A.sample_antipodal(mesh, GRIPPER, A.AntipodalParams(depth_margin=0.02), rng)  # 2F-85 pads: 37.5 mm
 
@@ -160,16 +161,30 @@ def test_sphere_contact_lines_pass_near_the_centre(friction):
     assert c.width.min() >= 2 * SPHERE_RADIUS * math.cos(math.atan(friction) + facet) * math.cos(facet) - 1e-9
 
 
-@pytest.mark.parametrize("gripper_name, margin", [("robotiq_2f85", 0.01), ("panda", 0.0), ("box_jaw", 0.03)])
-def test_no_kept_grasp_has_width_outside_the_opening_range(gripper_name, margin):
+@pytest.mark.parametrize("gripper_name, margin, clearance",
+                         [("robotiq_2f85", 0.02, 0.01), ("panda", 0.0, 0.0), ("box_jaw", 0.03, 0.03)])
+def test_no_kept_grasp_has_width_outside_the_opening_range(gripper_name, margin, clearance):
     gripper = get_gripper(gripper_name)
     mesh = _box()
-    params = A.AntipodalParams(num_surface_points=400, width_margin=margin, approach="any")
+    params = A.AntipodalParams(num_surface_points=400, width_margin=margin, min_clearance=clearance, approach="any")
     c = _sample(mesh, params, gripper=gripper)
     assert len(c) > 0
     assert c.width.min() >= max(gripper.min_width, params.surface_offset)
-    assert c.width.max() + margin <= gripper.max_width + 1e-12
+    assert c.width.max() + clearance <= gripper.max_width + 1e-12
     np.testing.assert_allclose(c.width, np.linalg.norm(c.p2 - c.p1, axis=1))
+
+
+def test_a_block_wider_than_stroke_minus_margin_is_still_grasped_across_it():
+    """The bundled 50 x 70 x 120 mm block in the 85 mm 2F-85: 70 mm + the 20 mm margin exceeds the stroke, but the
+    full opening leaves 15 mm, more than ``min_clearance``: its 70 mm faces are grasped, its 120 mm ones never."""
+    mesh = trimesh.creation.box((0.05, 0.07, 0.12))
+    c = _sample(mesh, A.AntipodalParams(num_surface_points=400, approach="any"))
+    axis = np.abs((c.p2 - c.p1) / c.width[:, None]).argmax(axis=1)
+    assert {0, 1} <= set(axis.tolist()) and 2 not in set(axis.tolist())
+    # pairs across the 70 mm faces (their lines may lean inside the cone, so the width is >= 70 mm)
+    np.testing.assert_allclose(np.abs(c.p2 - c.p1)[axis == 1, 1], 0.07, atol=1e-6)
+    strict = _sample(mesh, A.AntipodalParams(num_surface_points=400, approach="any", min_clearance=0.02))
+    assert len(strict) > 0 and strict.width.max() < 0.065
 
 
 def test_thin_object_widths_too_small_for_a_gripper_with_a_minimum():
