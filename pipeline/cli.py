@@ -86,6 +86,11 @@ def summary_table(reports: list[StageReport]) -> Table:
         table.add_column(col, justify="left" if col == "stage" else "right")
     for r in reports:
         table.add_row(r.stage, str(r.total), str(r.ran), str(r.skipped), str(r.failed), f"{r.seconds:.1f}")
+    shared = [[r.stage for r in reports if r.wave == w] for w in sorted({r.wave for r in reports})]
+    shared = [group for group in shared if len(group) > 1]
+    if shared:
+        table.caption = "ran side by side (seconds overlap): " + "; ".join(" + ".join(g) for g in shared)
+        table.caption_justify = "left"
     return table
 
 

@@ -60,6 +60,9 @@ class StageReport:
     skipped: int = 0
     failed: int = 0
     seconds: float = 0.0
+    """From the start of the stage's wave to its publish: stages of one wave run side by side, so theirs overlap."""
+    wave: int = 0
+    """Index of the wave the stage ran in (stages of one wave do not read each other and share the workers)."""
     failures: list[tuple[str, str]] = dataclasses.field(default_factory=list)
     """(task id, error text) of every failed task, new or remembered."""
 
@@ -263,9 +266,10 @@ def run_pipeline(
     reports: dict[str, StageReport] = {}
     current: dict[str, set[str]] = {}
     with RunLock(out), parallel_backend(run, jobs):
-        for wave in stage_waves(order):
+        for index, wave in enumerate(stage_waves(order)):
             for stage_run in _run_wave(wave, config, out, ctx, jobs, retry_failed, notify, current):
                 current[stage_run.stage.name] = stage_run.keys
+                stage_run.report.wave = index
                 reports[stage_run.stage.name] = stage_run.report
     return [reports[s.name] for s in order]
 

@@ -67,3 +67,19 @@ def test_config_show_prints_loadable_yaml_with_docs():
     assert result.exit_code == 0
     assert "# Draws per task." in result.output
     assert yaml.safe_load(result.output)["numbers"]["size"] == 9
+
+
+def test_summary_says_which_stages_ran_side_by_side():
+    from rich.console import Console
+
+    from pipeline.cli import summary_table
+    from pipeline.scheduler import StageReport
+
+    def text(reports):
+        console = Console(width=120, record=True)
+        console.print(summary_table(reports))
+        return console.export_text()
+
+    reports = [StageReport("a", wave=0), StageReport("b", wave=1), StageReport("c", wave=1), StageReport("d", wave=2)]
+    assert "ran side by side (seconds overlap): b + c" in text(reports)
+    assert "side by side" not in text([StageReport("a", wave=0), StageReport("b", wave=1)])
