@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.config import check, to_dict
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, InputError
 from pipeline.io import read_h5, write_h5
 from pipeline.keys import sha256_file
 from pipeline.stage import RunContext, Stage, Task, Upstream
@@ -163,17 +163,20 @@ class ObjectsStage(Stage):
         ctx: RunContext,
     ) -> dict[str, Any]:
         path = Path(task.inputs[0])
-        prepared = prepare_object(
-            path,
-            density=float(task.payload["density"]),
-            scale=params.scale,
-            min_extent=params.min_extent,
-            max_extent=params.max_extent,
-            coacd=params.coacd,
-            poses=params.stable_poses,
-            rng=rng,
-            coacd_cache_dir=ctx.cache_dir / "coacd",
-        )
+        try:
+            prepared = prepare_object(
+                path,
+                density=float(task.payload["density"]),
+                scale=params.scale,
+                min_extent=params.min_extent,
+                max_extent=params.max_extent,
+                coacd=params.coacd,
+                poses=params.stable_poses,
+                rng=rng,
+                coacd_cache_dir=ctx.cache_dir / "coacd",
+            )
+        except InputError as exc:
+            raise InputError(_with_path(str(exc), path)) from None
         write_h5(out, object_tree(task.id, path, prepared, params))
         return {
             "mass": prepared.mass.mass,
@@ -181,6 +184,15 @@ class ObjectsStage(Stage):
             "stable_poses": int(len(prepared.stable_probabilities)),
             "warnings": list(prepared.warnings),
         }
+
+
+def _with_path(message: str, path: Path) -> str:
+    """The message naming the file by its path: mesh preparation names it by file name only (what it stores in
+    shards must not depend on where the input lives), but a user fixing inputs wants the folder too."""
+    if message.startswith(str(path)):
+        return message
+    short = f"{path.name}: "
+    return f"{path}: {message[len(short):] if message.startswith(short) else message}"
 
 
 def object_tree(name: str, path: Path, prepared: PreparedObject, params: ObjectsParams) -> dict[str, Any]:

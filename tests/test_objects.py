@@ -89,6 +89,7 @@ def test_broken_files_are_named_and_the_good_ones_processed(broken_folder, tmp_p
         line = next((ln for ln in result.stderr.splitlines() if f"objects/{name}:" in ln), None)
         assert line is not None, f"{name} not reported:\n{result.stderr}"
         assert reason in " ".join(result.stderr.split()), f"{name}: no '{reason}' in the report"
+        assert f"objects/{name}: InputError: {broken_folder}/{name}." in text, f"{name}: path not in the report"
     done = {e.task for e in committed(out, "objects").values()}
     assert done == {"good_box", "good_mm_cylinder"}
     cyl = read_object(_shard(out, "good_mm_cylinder"))
