@@ -326,6 +326,13 @@ GRIPPERS: dict[str, GripperSpec] = {g.name: g for g in (_BOX_JAW, _PANDA, _ROBOT
 DEFAULT_GRIPPER = "robotiq_2f85"
 
 
+def jaw_opening(width, width_margin: float, min_width: float, max_width: float) -> np.ndarray:
+    """Pad separation (m) the jaws open to before the approach, for contact width(s) ``width`` (m, scalar or
+    ``(n,)``): ``width + width_margin`` clipped to ``[min_width, max_width]``. The pre-filter and the rollout both
+    use it, so the jaws checked for collisions are the jaws simulated."""
+    return np.clip(np.asarray(width, dtype=float) + width_margin, min_width, max_width)
+
+
 def get_gripper(name: str) -> GripperSpec:
     """The registered :class:`GripperSpec` called ``name``; :class:`ConfigError` listing the choices otherwise."""
     try:

@@ -36,7 +36,7 @@ from dataclasses import dataclass, fields
 import mujoco
 import numpy as np
 
-from stages.grippers import PhysicsOptions
+from stages.grippers import PhysicsOptions, jaw_opening
 
 __all__ = [
     "Outcome",
@@ -758,7 +758,7 @@ class LiftSimulator:
         self.steps = 0
         R = np.asarray(T_tcp_world, dtype=float)[:3, :3]
         z_axis = R[:, 2].copy()
-        open_width = min(max(width + p.width_margin, self.min_width), self.max_width)
+        open_width = float(jaw_opening(width, p.width_margin, self.min_width, self.max_width))
         pre = pos - p.approach_distance * z_axis
         nan = math.nan
         closed_width = lift_gain = rel_t = rel_r = nan

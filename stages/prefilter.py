@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from stages.grippers import GripperSpec, attach_gripper, gripper_geom_ids
+from stages.grippers import GripperSpec, attach_gripper, gripper_geom_ids, jaw_opening
 
 __all__ = [
     "FREE",
@@ -259,8 +259,7 @@ class CollisionChecker:
 
     def opening(self, widths) -> np.ndarray:
         """Jaw opening (m) used for contact widths ``widths (n,)``: ``width + width_margin`` clipped to the range."""
-        return np.clip(np.asarray(widths, dtype=float) + self.params.width_margin, self.gripper.min_width,
-                       self.gripper.max_width)
+        return jaw_opening(widths, self.params.width_margin, self.gripper.min_width, self.gripper.max_width)
 
     def check(self, T_tcp_world, widths, target_body_name: str, *, return_steps: bool = False):
         """Collision code of each candidate (see the module docstring).
