@@ -59,10 +59,10 @@ def child(args: argparse.Namespace) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import pyarrow.parquet as pq
 
+    from graspgen_cli.app import PROJECT
     from pipeline.config import load_config
     from pipeline.keys import sha256_file
     from pipeline.scheduler import run_pipeline
-    from stages.cli import PROJECT
 
     sets = [f"run.out={args.out}", f"run.cache_dir={args.cache}", f"run.jobs={args.jobs}",
             f"run.backend={args.backend}"]

@@ -4,11 +4,11 @@ For each bundled object (mug, box) this measures, in one process:
 
 * raw Embree rays/s: ``mesh.ray.intersects_first`` on as many rays as one sampler call casts (the floor of the
   sampler's own cost: it casts exactly one ray per contact pair);
-* sampling alone: :func:`stages.antipodal.sample_antipodal` candidates/s (kept candidates after every filter,
+* sampling alone: :func:`graspgen.geometry.antipodal.sample_antipodal` candidates/s (kept candidates after every filter,
   default approach filter ``hemisphere``, default ``num_depths`` = 3 grasp depths per orientation: each accepted
   ray gives up to 8 x 3 candidates, so candidates/s is ~3x that of one depth for the same rays) and its rays/s, as
   a ratio to the raw Embree rate;
-* the pre-filter: :class:`stages.prefilter.CollisionChecker` candidates/s (default params: 11 poses along a 0.1 m
+* the pre-filter: :class:`graspgen.sim.prefilter.CollisionChecker` candidates/s (default params: 11 poses along a 0.1 m
   approach) and its cost per checked pose against the floor: one ``mj_kinematics`` + ``mj_collision`` of the same
   model with the gripper in free space;
 * sampling + pre-filter together: candidates/s through both.
@@ -41,11 +41,11 @@ import trimesh  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from stages.antipodal import AntipodalParams, sample_antipodal, uses_embree  # noqa: E402
-from stages.grippers import DEFAULT_GRIPPER, get_gripper  # noqa: E402
-from stages.mesh_prep import StablePoseParams, prepare_object  # noqa: E402
+from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal, uses_embree  # noqa: E402
+from graspgen.geometry.mesh_prep import StablePoseParams, prepare_object  # noqa: E402
+from graspgen.sim.grippers import DEFAULT_GRIPPER, get_gripper  # noqa: E402
+from graspgen.sim.prefilter import CollisionChecker, PrefilterParams  # noqa: E402
 from stages.objects import catalog  # noqa: E402
-from stages.prefilter import CollisionChecker, PrefilterParams  # noqa: E402
 
 BAR_CANDIDATES_PER_S = 5000.0
 OBJECTS = ("mug", "box")

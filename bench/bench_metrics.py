@@ -1,18 +1,18 @@
 """Epsilon throughput (DESIGN section 9: >= 2,000 grasps per second per core) and the robustness stage's cost per
 grasp.
 
-Scene: the bundled box (50 x 70 x 120 mm, 0.27 kg) prepared with :func:`stages.mesh_prep.prepare_object`, in its
-most probable stable pose (flat on its 70 x 120 mm face) on the scenes stage's table (:func:`stages.scene_model.
-build_scene_spec`), with the Robotiq 2F-85 attached, compiled once into a :class:`stages.lift.LiftSimulator` (default
-:class:`stages.lift.LiftParams`), object friction 0.5. Grasps: top-down, closing across the 70 mm extent (turned by
+Scene: the bundled box (50 x 70 x 120 mm, 0.27 kg) prepared with :func:`graspgen.geometry.mesh_prep.prepare_object`, in its
+most probable stable pose (flat on its 70 x 120 mm face) on the scenes stage's table (:func:`graspgen.sim.scene_model.
+build_scene_spec`), with the Robotiq 2F-85 attached, compiled once into a :class:`graspgen.sim.lift.LiftSimulator` (default
+:class:`graspgen.sim.lift.LiftParams`), object friction 0.5. Grasps: top-down, closing across the 70 mm extent (turned by
 N(0, 5 deg) about the vertical), offset uniformly by up to 45 mm along the 120 mm axis and N(0, 2 mm) across it,
 TCP 10-30 mm below the top.
 
 1. **Epsilon**: the contact sets of those grasps, as the metrics stage sees them: each grasp's rollout contacts at
    the end of closing (1-4 per pad, object frame) when both jaws touched, and its ray-cast closing contacts (3 x 3
-   rays per pad). Timed: :func:`stages.metrics.grasp_epsilon` per contact set, one process (one core), the ``pad``
+   rays per pad). Timed: :func:`graspgen.quality.epsilon.grasp_epsilon` per contact set, one process (one core), the ``pad``
    model (default) and the ``points`` model; best of ``--rounds`` passes. The ratio is to the bar (2,000/s).
-2. **Robustness**: for successful grasps, :func:`stages.robustness.grasp_robustness` with N = 20, 50, 100 perturbed
+2. **Robustness**: for successful grasps, :func:`graspgen.quality.robustness.grasp_robustness` with N = 20, 50, 100 perturbed
    copies (default sigmas: 5 mm, 5 deg): N rollouts, the epsilon of each copy (ray casts for copies without
    two-jaw contacts). Reported: seconds per grasp, copies (rollouts) per second, the share of the time spent
    outside the rollouts (epsilon, ray casts, bookkeeping), and the copies' outcome histogram. The scene's compile
@@ -37,14 +37,15 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from stages.contacts import closing_contacts
-from stages.grippers import DEFAULT_GRIPPER, attach_gripper, get_gripper
-from stages.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
-from stages.mesh_prep import prepare_object
-from stages.metrics import EpsilonParams, contact_set, grasp_epsilon, object_geometry
-from stages.objects import ASSETS, ObjectRecord, catalog
-from stages.robustness import DRAWS_PER_COPY, RobustnessParams, grasp_robustness, rollout_with_object_pose
-from stages.scene_model import SupportParams, build_scene_spec, object_body_name, placed_object
+from graspgen.geometry.contacts import closing_contacts
+from graspgen.geometry.mesh_prep import prepare_object
+from graspgen.io.objects import ObjectRecord
+from graspgen.quality.epsilon import EpsilonParams, contact_set, grasp_epsilon, object_geometry
+from graspgen.quality.robustness import DRAWS_PER_COPY, RobustnessParams, grasp_robustness, rollout_with_object_pose
+from graspgen.sim.grippers import DEFAULT_GRIPPER, attach_gripper, get_gripper
+from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
+from graspgen.sim.scene_model import SupportParams, build_scene_spec, object_body_name, placed_object
+from stages.objects import ASSETS, catalog
 
 RESULTS = Path(__file__).resolve().parent / "results_metrics.json"
 FRICTION = 0.5

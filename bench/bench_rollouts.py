@@ -1,8 +1,8 @@
 """Grasp-and-lift rollout throughput (DESIGN section 9: >= 20 rollouts/s per core, report the ratio to the floor).
 
-For each bundled object (box, can): prepare it with :func:`stages.mesh_prep.prepare_object`, rest it in its most
+For each bundled object (box, can): prepare it with :func:`graspgen.geometry.mesh_prep.prepare_object`, rest it in its most
 probable stable pose on a table (``support/table``), settle it, attach the default gripper (Robotiq 2F-85), and roll
-out random top-down grasps across it with :class:`stages.lift.LiftSimulator` (default :class:`LiftParams`, once
+out random top-down grasps across it with :class:`graspgen.sim.lift.LiftSimulator` (default :class:`LiftParams`, once
 without and once with the shake). Reported per object:
 
 * rollouts/s in one process on one core (MuJoCo is single-threaded), and ms per rollout;
@@ -46,9 +46,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from stages import grippers as G
-from stages.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
-from stages.mesh_prep import CoacdParams, PreparedObject, prepare_object
+from graspgen.geometry.mesh_prep import CoacdParams, PreparedObject, prepare_object
+from graspgen.sim import grippers as G
+from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
 
 ROOT = Path(__file__).resolve().parents[1]
 OBJECTS = ROOT / "assets" / "objects"
@@ -134,7 +134,7 @@ def sample_grasps(verts: np.ndarray, n: int, rng: np.random.Generator) -> list[t
 
 class _StepTimer:
     """Context manager: while active, ``mujoco.mj_step`` is wrapped so that the time spent inside it (and the steps
-    taken) are summed. :mod:`stages.lift` looks ``mujoco.mj_step`` up when it steps (never caches it across calls),
+    taken) are summed. :mod:`graspgen.sim.lift` looks ``mujoco.mj_step`` up when it steps (never caches it across calls),
     so the rollouts run their exact physics through the wrapper: the sum is the bare ``mj_step`` cost of exactly those
     steps, Python -> C call included, everything else excluded."""
 

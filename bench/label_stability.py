@@ -1,7 +1,7 @@
 """Label stability: do the outcome labels survive a finer simulation? (bar: at most 5% of them change)
 
 Takes a finished run (the current config's committed shards, found through the stage manifests) and rolls every
-grasp the rollouts stage simulated out again, in the same scene model (:func:`stages.rollouts.scene_simulator`),
+grasp the rollouts stage simulated out again, in the same scene model (:func:`graspgen.sim.rollouts.scene_simulator`),
 with the config's ``rollouts.lift`` changed in the physics only:
 
 * ``timestep`` halved (2 ms -> 1 ms) and solver ``iterations`` doubled (100 -> 200);
@@ -30,13 +30,13 @@ import numpy as np
 import pyarrow.parquet as pq
 from outcome_histogram import SHORT, current_shards  # same folder: python puts the script's folder on sys.path
 
+from graspgen.io.arrow import column_array
+from graspgen.io.objects import read_object
+from graspgen.sim.lift import OUTCOME_NAMES, LiftParams
+from graspgen.sim.rollouts import scene_simulator
+from graspgen.sim.scene_model import object_body_name
+from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
-from stages.cli import PROJECT
-from stages.grasps import column_array
-from stages.lift import OUTCOME_NAMES, LiftParams
-from stages.objects import read_object
-from stages.rollouts import scene_simulator
-from stages.scene_model import object_body_name
 
 RESULTS = Path(__file__).resolve().parent / "results_label_stability.json"
 BAR = 0.05

@@ -21,11 +21,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from graspgen.sim.lift import OUTCOME_NAMES
+from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.scheduler import Project, committed, plan, upstream_view
 from pipeline.stage import topological_order
-from stages.cli import PROJECT
-from stages.lift import OUTCOME_NAMES
 
 RESULTS = Path(__file__).resolve().parent / "results_outcome_histogram.json"
 SHORT = ("ground", "target", "clutter", "no_contact", "slipped", "success")

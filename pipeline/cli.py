@@ -96,6 +96,7 @@ def summary_table(reports: list[StageReport]) -> Table:
 
 def build_app(project: Project) -> typer.Typer:
     """A Typer app with the generic commands for ``project``."""
+    user_errors = (GenError, *project.user_errors)
     app = typer.Typer(help=f"{project.name}: run the pipeline, see where it stands.", no_args_is_help=True)
     config_app = typer.Typer(help="Inspect the configuration.", no_args_is_help=True)
     app.add_typer(config_app, name="config")
@@ -120,7 +121,7 @@ def build_app(project: Project) -> typer.Typer:
                 reports = run_pipeline(
                     project, cfg, [stage] if stage else None, retry_failed=retry_failed, progress=display
                 )
-        except GenError as exc:
+        except user_errors as exc:
             fail(console, str(exc))
         console.print(summary_table(reports))
         failures = [(r.stage, t, e) for r in reports for t, e in r.failures]
@@ -145,7 +146,7 @@ def build_app(project: Project) -> typer.Typer:
         try:
             cfg = load(project, config, set_, out=out)
             rows = status(project, cfg, [stage] if stage else None)
-        except GenError as exc:
+        except user_errors as exc:
             fail(console, str(exc))
         table = Table(title=f"status of {cfg.run.out}", title_justify="left")
         for col in ("stage", "state", "done", "missing", "failed", "why"):
@@ -164,7 +165,7 @@ def build_app(project: Project) -> typer.Typer:
         """Print the resolved config (file + overrides + defaults) as YAML."""
         try:
             cfg = load(project, config, set_)
-        except GenError as exc:
+        except user_errors as exc:
             fail(Console(stderr=True), str(exc))
         sys.stdout.write(to_yaml(cfg, comments=comments))
 
@@ -180,14 +181,14 @@ def build_app(project: Project) -> typer.Typer:
         try:
             cfg = load(project, config, set_, out=out)
             names = [project.stage(stage).name] if stage else [s.name for s in project.stages]
-        except GenError as exc:
+        except user_errors as exc:
             fail(console, str(exc))
         root = Path(cfg.run.out)
         if not root.exists():
             return
         try:
             lock = RunLock(root).__enter__()
-        except GenError as exc:
+        except user_errors as exc:
             fail(console, str(exc))
         for name in names:
             if (root / name).exists():

@@ -15,10 +15,6 @@ class ConfigError(GenError):
     """A config file or override is wrong. The message names the key path, e.g. ``objects.density``."""
 
 
-class InputError(GenError):
-    """An input file (a mesh, a grasp file) cannot be used. The message names the file and the reason."""
-
-
 class StageError(GenError):
     """A stage was asked for something it cannot do (unknown stage name, missing upstream output)."""
 

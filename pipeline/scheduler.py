@@ -35,6 +35,8 @@ class Project:
     name: str
     schema: type
     stages: tuple[Stage, ...]
+    user_errors: tuple[type[BaseException], ...] = ()
+    """Exception types (besides :class:`~pipeline.errors.GenError`) the command line reports in one line."""
 
     def stage(self, name: str) -> Stage:
         for s in self.stages:
@@ -152,7 +154,7 @@ def execute_task(
         )
     except Exception as exc:  # noqa: BLE001 - any task error is recorded, and the run goes on
         text = f"{type(exc).__name__}: {exc}"
-        if not _is_user_error(exc):
+        if not _is_user_error(exc, stage):
             text += "\n" + "".join(traceback.format_exception(exc)[-3:])
         return Entry(
             key=key,
@@ -164,10 +166,10 @@ def execute_task(
         )
 
 
-def _is_user_error(exc: BaseException) -> bool:
+def _is_user_error(exc: BaseException, stage: Stage) -> bool:
     from pipeline.errors import GenError
 
-    return isinstance(exc, GenError)
+    return isinstance(exc, (GenError, *stage.user_errors))
 
 
 # --------------------------------------------------------------------------------------------------------------

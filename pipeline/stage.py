@@ -122,6 +122,9 @@ class Stage(abc.ABC):
     """Bump by hand when the stage's semantics or output format change: its outputs become stale."""
     ext: str = "h5"
     """Shard file extension (``h5`` or ``parquet``)."""
+    user_errors: tuple[type[BaseException], ...] = ()
+    """Exception types (besides :class:`~pipeline.errors.GenError`) that mean bad input rather than a bug: a task
+    failing with one is reported in one line, without a traceback."""
 
     def params(self, config: Any) -> Any:
         """This stage's params: the config section named like the stage."""

@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 
-from pipeline.config import RunConfig, check
+from graspgen.quality.epsilon import MetricsParams
+from graspgen.quality.robustness import RobustnessParams
+from graspgen.sim.rollouts import RolloutsParams
+from graspgen.sim.scene_grasps import GraspsParams
+from graspgen.sim.scenes import ScenesParams
+from graspgen.validation import check
+from pipeline.config import RunConfig
 from stages.dataset import DatasetParams
-from stages.grasps import GraspsParams
-from stages.metrics import MetricsParams
 from stages.objects import ObjectsParams
-from stages.robustness import RobustnessParams
-from stages.rollouts import RolloutsParams
-from stages.scenes import ScenesParams
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,7 +16,7 @@ shards as hard links, copies where links are not possible)::
     grasps.parquet          the merged table: the dataset shard
     scenes/<scene_id>.h5    the scene shards of the included scenes (cameras, images, clouds, object poses)
     objects/<name>.h5       the object shards of the library (mesh, convex parts, mass properties, stable poses)
-    acronym/<name>.h5       each object's grasps as an ACRONYM grasp file (:mod:`stages.acronym`), rows in
+    acronym/<name>.h5       each object's grasps as an ACRONYM grasp file (:mod:`graspgen.io.acronym`), rows in
                             grasps.parquet order; its mesh as acronym/meshes/<name>.obj (the file's object/file)
     plots/*.png             outcomes, robustness, epsilon, correlation (label columns present), examples
     config.yaml             the resolved config: every stage section with its comments (``run`` left out)
@@ -26,7 +26,7 @@ shards as hard links, copies where links are not possible)::
 next to the engine's own files (``manifest.jsonl`` and the shard folders ``<xx>/``), which are not part of the
 dataset. :func:`report` renders the card and plots again from a published folder (``gen report``);
 :func:`validate` checks a folder against the manifests, the card's hashes and the schema (``gen validate``).
-Read a dataset with :func:`stages.reader.open_dataset`.
+Read a dataset with :func:`graspgen.io.reader.open_dataset`.
 
 Columns of ``grasps.parquet`` (with the default table stages; every column's description is also stored in the
 Parquet field metadata under ``description``; poses are 4x4 row-major, TCP frame: z approach, x closing):
@@ -92,11 +92,14 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import yaml
 
-from pipeline.config import check, to_dict, to_yaml
-from pipeline.errors import InputError, StageError
+from graspgen.errors import InputError
+from graspgen.validation import check
+from pipeline.config import to_dict, to_yaml
+from pipeline.errors import StageError
 from pipeline.keys import canonical_json, sha256_file
-from pipeline.stage import RunContext, Stage, Task, Upstream
+from pipeline.stage import RunContext, Task, Upstream
 from pipeline.store import MANIFEST, Manifest, atomic_path, write_text_atomic
+from stages.base import GraspStage
 
 __all__ = [
     "CARD_VERSION",
@@ -155,10 +158,10 @@ OUTCOME_NAMES = (
     "slipped_during_lifting",
     "success",
 )
-"""Outcome name by code (the same as :data:`stages.lift.OUTCOME_NAMES`; kept here so reading needs no MuJoCo)."""
+"""Outcome name by code (the same as :data:`graspgen.sim.lift.OUTCOME_NAMES`; kept here so reading needs no MuJoCo)."""
 
 OUTCOME_COLOURS = ("#960014", "#eb1e1e", "#ff6e82", "#fae100", "#ff8c00", "#28c83c")
-"""Plot colour by outcome code (as in :mod:`stages.grasp_view`)."""
+"""Plot colour by outcome code (as in :mod:`graspgen.viz.grasp_view`)."""
 
 COLUMN_DOCS: dict[str, str] = {
     "scene_id": "the scene (scenes/<scene_id>.h5)",
@@ -444,7 +447,7 @@ def included_scenes(upstream: Upstream, tables: Sequence[str]) -> tuple[list[str
     return keep, left
 
 
-class DatasetStage(Stage):
+class DatasetStage(GraspStage):
     """The published dataset: one task merging the table stages; :meth:`publish` lays out ``OUT/dataset``.
 
     Parameters
@@ -634,7 +637,7 @@ def export_acronym(root: Path) -> list[str]:
     """Each object's grasps of ``root/grasps.parquet`` as ``acronym/<object>.h5`` (+ ``acronym/meshes/<object>.obj``).
 
     Poses are the TCP poses in the object's mesh frame (``pose_object``), written as hand-base poses
-    (:func:`stages.acronym.write_acronym`); success is outcome 5. Further qualities under ``grasps/qualities/
+    (:func:`graspgen.io.acronym.write_acronym`); success is outcome 5. Further qualities under ``grasps/qualities/
     graspgen/``: outcome, width, and the labels present (robustness, pfc, epsilon; NaN where missing). Rows are in
     grasps.parquet order (by scene, then grasp id); ``graspgen/grasp_id`` and the order give the way back.
 
@@ -643,7 +646,7 @@ def export_acronym(root: Path) -> list[str]:
     list of str
         The written files, relative to ``root``.
     """
-    from stages.acronym import write_acronym
+    from graspgen.io.acronym import write_acronym
 
     wanted = ["object_name", "gripper", "pose_object", "outcome", "width", "grasp_id"]
     schema = pq.read_schema(root / "grasps.parquet")
@@ -917,7 +920,7 @@ def render_card(card: Mapping[str, Any]) -> str:
         "",
         f"Dataset key `{card['dataset_key']}` (the content key of `grasps.parquet`; it changes with any input, "
         "parameter or stage version). Check the files with `gen validate <folder>`; read them with "
-        "`stages.reader.open_dataset(<folder>)`, pandas, polars, duckdb or h5py.",
+        "`graspgen.io.reader.open_dataset(<folder>)`, pandas, polars, duckdb or h5py.",
         "",
         "## Files",
         "",
@@ -1164,13 +1167,13 @@ def draw_plots(root: Path, table: pa.Table, stats: Mapping[str, Any], params: Da
 
 
 def _examples_sheet(root: Path, table: pa.Table, params: DatasetParams) -> Any:
-    """Contact sheet of example grasps drawn on the first view of the first scenes (:mod:`stages.grasp_view`)."""
+    """Contact sheet of example grasps drawn on the first view of the first scenes (:mod:`graspgen.viz.grasp_view`)."""
     if params.example_scenes == 0 or params.example_grasps == 0:
         return None
     from PIL import Image
 
-    from stages.grasp_view import grasp_picture
-    from stages.scenes import read_scene
+    from graspgen.io.scenes import read_scene
+    from graspgen.viz.grasp_view import grasp_picture
 
     scene_col = np.asarray(table.column("scene_id").to_pylist(), dtype=object)
     pictures = []

@@ -2,7 +2,7 @@
 
 One task per mesh file (the bundled set in ``assets/objects`` plus the globs in ``objects.paths``). Each task
 loads, fixes units, repairs, computes mass properties, decomposes into convex parts (CoACD, cached) and finds
-physics-checked stable poses (:mod:`stages.mesh_prep`), then writes one HDF5 shard::
+physics-checked stable poses (:mod:`graspgen.geometry.mesh_prep`), then writes one HDF5 shard::
 
     /mesh/vertices (v, 3) float64 m         /mesh/faces (f, 3) int32
     /convex/vertices (V, 3) float64 m        /convex/faces (F, 3) int32   (all parts, concatenated)
@@ -25,12 +25,15 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import check, to_dict
-from pipeline.errors import ConfigError, InputError
-from pipeline.io import read_h5, write_h5
-from pipeline.keys import sha256_file
-from pipeline.stage import RunContext, Stage, Task, Upstream
-from stages.mesh_prep import CoacdParams, PreparedObject, StablePoseParams, prepare_object
+from graspgen.errors import InputError
+from graspgen.geometry.mesh_prep import CoacdParams, StablePoseParams, prepare_object
+from graspgen.io.files import write_h5
+from graspgen.io.objects import object_tree
+from graspgen.validation import check
+from pipeline.config import to_dict
+from pipeline.errors import ConfigError
+from pipeline.stage import RunContext, Task, Upstream
+from stages.base import GraspStage
 
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "objects"
 """The bundled objects and their catalog (name, file, density)."""
@@ -71,31 +74,6 @@ class ObjectsParams:
         check("density", self.density > 0, "be > 0", self.density)
         for name, rho in self.densities.items():
             check(f"densities.{name}", rho > 0, "be > 0", rho)
-
-
-@dataclasses.dataclass(frozen=True)
-class ObjectRecord:
-    """A prepared object as read back from its shard (what downstream stages use)."""
-
-    name: str
-    vertices: np.ndarray
-    """(v, 3) float64, m, mesh frame."""
-    faces: np.ndarray
-    """(f, 3) int32."""
-    convex_parts: list[tuple[np.ndarray, np.ndarray]]
-    """Convex parts as (vertices (n, 3) float64, faces (m, 3) int32)."""
-    mass: float
-    """kg."""
-    center_of_mass: np.ndarray
-    """(3,) m, mesh frame."""
-    inertia: np.ndarray
-    """(3, 3) kg m^2 about the centre of mass, mesh frame axes."""
-    stable_poses: np.ndarray
-    """(n, 4, 4) transforms placing the mesh frame so the object rests on the plane z = 0."""
-    stable_probabilities: np.ndarray
-    """(n,) probabilities, summing to 1."""
-    attrs: dict[str, Any]
-    """Provenance and flags (source file, scale, density, warnings, ...)."""
 
 
 def catalog() -> dict[str, dict[str, Any]]:
@@ -141,7 +119,7 @@ def discover(params: ObjectsParams) -> list[tuple[str, Path, float]]:
     return [(name, path, density) for name, (path, density) in sorted(found.items())]
 
 
-class ObjectsStage(Stage):
+class ObjectsStage(GraspStage):
     name = "objects"
     inputs = ()
     version = 1
@@ -177,7 +155,7 @@ class ObjectsStage(Stage):
             )
         except InputError as exc:
             raise InputError(_with_path(str(exc), path)) from None
-        write_h5(out, object_tree(task.id, path, prepared, params))
+        write_h5(out, object_tree(task.id, path, prepared, to_dict(params)))
         return {
             "mass": prepared.mass.mass,
             "parts": len(prepared.convex_parts),
@@ -195,67 +173,3 @@ def _with_path(message: str, path: Path) -> str:
     return f"{path}: {message[len(short):] if message.startswith(short) else message}"
 
 
-def object_tree(name: str, path: Path, prepared: PreparedObject, params: ObjectsParams) -> dict[str, Any]:
-    """The HDF5 layout of one object shard (see the module docstring)."""
-    parts = prepared.convex_parts
-    v_off = np.cumsum([0] + [len(v) for v, _ in parts], dtype=np.int64)
-    f_off = np.cumsum([0] + [len(f) for _, f in parts], dtype=np.int64)
-    mass = prepared.mass
-    return {
-        "@attrs": {
-            "name": name,
-            "source_file": path.name,
-            "source_sha256": sha256_file(path),
-            "scale": float(prepared.scale),
-            "density": float(mass.mass / mass.volume),
-            "mass": float(mass.mass),
-            "volume": float(mass.volume),
-            "watertight": bool(prepared.repair.watertight),
-            "from_convex_hull": bool(mass.from_convex_hull),
-            "repair_notes": list(prepared.repair.notes),
-            "warnings": list(prepared.warnings),
-            "params": to_dict(params),
-        },
-        "mesh": {
-            "vertices": np.asarray(prepared.vertices, dtype=np.float64),
-            "faces": np.asarray(prepared.faces, dtype=np.int32),
-        },
-        "convex": {
-            "vertices": np.concatenate([v for v, _ in parts]).astype(np.float64),
-            "faces": np.concatenate([f for _, f in parts]).astype(np.int32),
-            "vertex_offsets": v_off,
-            "face_offsets": f_off,
-        },
-        "mass": {
-            "center_of_mass": np.asarray(mass.center_of_mass, dtype=np.float64),
-            "inertia": np.asarray(mass.inertia, dtype=np.float64),
-        },
-        "stable_poses": {
-            "transforms": np.asarray(prepared.stable_transforms, dtype=np.float64),
-            "probabilities": np.asarray(prepared.stable_probabilities, dtype=np.float64),
-        },
-    }
-
-
-def read_object(path: str | Path) -> ObjectRecord:
-    """Read an object shard written by the ``objects`` stage."""
-    tree = read_h5(path)
-    conv = tree["convex"]
-    v_off, f_off = conv["vertex_offsets"], conv["face_offsets"]
-    parts = [
-        (conv["vertices"][v_off[i] : v_off[i + 1]], conv["faces"][f_off[i] : f_off[i + 1]])
-        for i in range(len(v_off) - 1)
-    ]
-    attrs = tree["@attrs"]
-    return ObjectRecord(
-        name=attrs["name"],
-        vertices=tree["mesh"]["vertices"],
-        faces=tree["mesh"]["faces"],
-        convex_parts=parts,
-        mass=float(attrs["mass"]),
-        center_of_mass=tree["mass"]["center_of_mass"],
-        inertia=tree["mass"]["inertia"],
-        stable_poses=tree["stable_poses"]["transforms"],
-        stable_probabilities=tree["stable_poses"]["probabilities"],
-        attrs=attrs,
-    )

@@ -6,15 +6,9 @@ import h5py
 import numpy as np
 import pytest
 
-from pipeline.errors import ConfigError, InputError
-from stages.acronym import (
-    SUCCESS_KEY,
-    hand_base_from_tcp,
-    read_acronym,
-    tcp_from_hand_base,
-    write_acronym,
-)
-from stages.grippers import get_gripper
+from graspgen.errors import InputError, SettingsError
+from graspgen.io.acronym import SUCCESS_KEY, hand_base_from_tcp, read_acronym, tcp_from_hand_base, write_acronym
+from graspgen.sim.grippers import get_gripper
 
 
 def random_poses(n: int, seed: int = 0) -> np.ndarray:
@@ -107,7 +101,7 @@ def test_unknown_gripper_type_lists_the_known_ones(tmp_path):
         del f["gripper/type"]
         f["gripper/type"] = "shadow_hand"
     grasps = read_acronym(path)  # reading works; converting needs the gripper's TCP offset
-    with pytest.raises(ConfigError, match="unknown 'shadow_hand'; choose one of: box_jaw, panda, robotiq_2f85"):
+    with pytest.raises(SettingsError, match="unknown 'shadow_hand'; choose one of: box_jaw, panda, robotiq_2f85"):
         grasps.tcp_poses()
     np.testing.assert_allclose(grasps.tcp_poses(0.1034), random_poses(2), atol=1e-12)  # an explicit offset works
 
@@ -115,7 +109,7 @@ def test_unknown_gripper_type_lists_the_known_ones(tmp_path):
 def test_write_checks_its_arguments(tmp_path):
     with pytest.raises(ValueError, match="success: expected 2 labels"):
         write_acronym(tmp_path / "g.h5", random_poses(2), [1], object_file="a.obj")
-    with pytest.raises(ConfigError, match="unknown 'hand'"):
+    with pytest.raises(SettingsError, match="unknown 'hand'"):
         write_acronym(tmp_path / "g.h5", random_poses(2), [1, 1], object_file="a.obj", gripper="hand")
     with pytest.raises(ValueError, match="do not pass it twice"):
         write_acronym(tmp_path / "g.h5", random_poses(2), [1, 1], object_file="a.obj",

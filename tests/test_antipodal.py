@@ -11,9 +11,9 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from stages import antipodal as A
-from stages.grippers import get_gripper
-from stages.mesh_prep import load_mesh
+from graspgen.geometry import antipodal as A
+from graspgen.geometry.mesh_prep import load_mesh
+from graspgen.sim.grippers import get_gripper
 
 BOX_EXTENTS = (0.05, 0.07, 0.12)
 SPHERE_RADIUS = 0.03

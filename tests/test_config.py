@@ -8,7 +8,8 @@ from typing import Literal
 import pytest
 import yaml
 
-from pipeline.config import RunConfig, check, field_docs, load_config, to_dict, to_yaml
+from graspgen.validation import check
+from pipeline.config import RunConfig, field_docs, load_config, to_dict, to_yaml
 from pipeline.errors import ConfigError
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from stages.contacts import LEFT, RIGHT, closing_contacts
-from stages.grippers import get_gripper
+from graspgen.geometry.contacts import LEFT, RIGHT, closing_contacts
+from graspgen.sim.grippers import get_gripper
 
 GRIPPER = get_gripper("robotiq_2f85")
 

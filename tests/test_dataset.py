@@ -13,12 +13,12 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
+from graspgen_cli.app import PROJECT, app
 from pipeline.config import load_config, to_dict
 from pipeline.errors import StageError
 from pipeline.keys import sha256_file
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import committed, run_pipeline
-from stages.cli import PROJECT, app
 from stages.dataset import (
     COLUMN_DOCS,
     REQUIRED_SCHEMA,
@@ -237,7 +237,7 @@ def test_config_yaml_makes_the_same_config(run):
 
 
 def test_acronym_export_round_trips_the_poses(run):
-    from stages.acronym import read_acronym
+    from graspgen.io.acronym import read_acronym
 
     root, _ = run
     d = root / "out" / "dataset"

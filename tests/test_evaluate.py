@@ -13,11 +13,11 @@ import pytest
 import trimesh
 from typer.testing import CliRunner
 
-from pipeline.io import write_parquet
-from stages.cli import app
-from stages.evaluate import METADATA_KEY, EvaluateParams, evaluate_grasps, read_pose_table
-from stages.grasps import column_array
-from stages.lift import Outcome
+from graspgen.evaluate import METADATA_KEY, EvaluateParams, evaluate_grasps, read_pose_table
+from graspgen.io.arrow import column_array
+from graspgen.io.files import write_parquet
+from graspgen.sim.lift import Outcome
+from graspgen_cli.app import app
 
 PANDA_TCP = 0.1034  # m, hand base -> TCP along z (ACRONYM's convention)
 SIZE_MM = (50.0, 60.0, 80.0)  # box extents along its mesh x, y, z, in the file's unit (mm)

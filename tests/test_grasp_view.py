@@ -13,12 +13,12 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
+from graspgen.io.arrow import fixed_list
+from graspgen.sim.grippers import get_gripper
+from graspgen.sim.scene_model import Camera
+from graspgen.viz import grasp_view as V
+from graspgen_cli.app import PROJECT, app, find_shard
 from pipeline.cli import load
-from stages import grasp_view as V
-from stages.cli import PROJECT, app, find_shard
-from stages.grasps import fixed_list
-from stages.grippers import get_gripper
-from stages.scene_model import Camera
 
 ROOT = Path(__file__).resolve().parent.parent
 GRIPPER = get_gripper("box_jaw")  # pad length 0.04 m: round numbers below

@@ -9,8 +9,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from pipeline.errors import ConfigError, GenError
-from stages import grippers as G
+from graspgen.errors import GraspGenError, SettingsError
+from graspgen.sim import grippers as G
 
 GRIPPER_NAMES = sorted(G.GRIPPERS)
 BOX_HALF = 0.025  # 5 cm box
@@ -139,11 +139,11 @@ def test_registry_holds_the_three_grippers():
         assert spec.to_dict()["name"] == spec.name
 
 
-def test_unknown_gripper_raises_config_error_listing_choices():
-    with pytest.raises(ConfigError) as err:
+def test_unknown_gripper_raises_settings_error_listing_choices():
+    with pytest.raises(SettingsError) as err:
         G.get_gripper("x")
     assert str(err.value) == "gripper: unknown 'x'; choose one of: box_jaw, panda, robotiq_2f85"
-    assert isinstance(err.value, GenError)
+    assert isinstance(err.value, GraspGenError)
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.io import read_h5, write_h5, write_parquet
+from graspgen.io.files import read_h5, write_h5, write_parquet
 from pipeline.keys import sha256_file
 
 

@@ -9,8 +9,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from stages import grippers as G
-from stages import lift as L
+from graspgen.sim import grippers as G
+from graspgen.sim import lift as L
 
 TABLE_TOP = 0.4  # m
 HALF = 0.025  # half side (m) of the default 5 cm target box

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from pipeline.errors import InputError
-from stages import mesh_prep as mp
+from graspgen.errors import InputError
+from graspgen.geometry import mesh_prep as mp
 
 # Cheap CoACD settings: the shapes here are simple, and the whole file must stay fast on one core.
 FAST_COACD = mp.CoacdParams(threshold=0.05, resolution=300, mcts_iterations=20, mcts_nodes=10, preprocess_resolution=20)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from stages.contacts import closing_contacts
-from stages.grippers import get_gripper
-from stages.metrics import grasp_epsilon, min_closure_friction, pad_contacts
-from stages.wrench import ferrari_canny, force_closure
+from graspgen.geometry.contacts import closing_contacts
+from graspgen.quality.epsilon import grasp_epsilon, min_closure_friction, pad_contacts
+from graspgen.quality.wrench import ferrari_canny, force_closure
+from graspgen.sim.grippers import get_gripper
 
 GRIPPER = get_gripper("robotiq_2f85")
 BOX = trimesh.creation.box((0.05, 0.07, 0.12))

@@ -12,15 +12,11 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from pipeline.config import load_config
-from pipeline.errors import ConfigError
-from pipeline.repro import shard_hashes
-from pipeline.scheduler import committed, run_pipeline
-from stages.cli import PROJECT
-from stages.contacts import ClosingContacts, closing_contacts
-from stages.grasps import column_array
-from stages.grippers import get_gripper
-from stages.metrics import (
+from graspgen.geometry.contacts import ClosingContacts, closing_contacts
+from graspgen.io.arrow import column_array
+from graspgen.io.objects import ObjectRecord, read_object
+from graspgen.io.scenes import read_scene
+from graspgen.quality.epsilon import (
     SCHEMA,
     EpsilonParams,
     contact_set,
@@ -30,9 +26,13 @@ from stages.metrics import (
     pad_contacts,
     world_to_object,
 )
-from stages.objects import ObjectRecord, read_object
-from stages.scenes import read_scene
-from stages.wrench import ferrari_canny_from_wrenches, grasp_matrix
+from graspgen.quality.wrench import ferrari_canny_from_wrenches, grasp_matrix
+from graspgen.sim.grippers import get_gripper
+from graspgen_cli.app import PROJECT
+from pipeline.config import load_config
+from pipeline.errors import ConfigError
+from pipeline.repro import shard_hashes
+from pipeline.scheduler import committed, run_pipeline
 
 GRIPPER = get_gripper("robotiq_2f85")
 

@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 import trimesh
 
+from graspgen.io.objects import read_object
+from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.errors import ConfigError
 from pipeline.scheduler import committed, run_pipeline
-from stages.cli import PROJECT
-from stages.objects import ObjectsParams, catalog, discover, read_object
+from stages.objects import ObjectsParams, catalog, discover
 
 CHEAP = [
     "objects.coacd.threshold=0.2",

@@ -6,11 +6,11 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from graspgen.io.arrow import column_array
+from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import committed, run_pipeline
-from stages.cli import PROJECT
-from stages.grasps import column_array
 
 
 def smoke(out, cache, *sets):

@@ -8,9 +8,9 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from stages import antipodal as A
-from stages import prefilter as P
-from stages.grippers import attach_gripper, get_gripper
+from graspgen.geometry import antipodal as A
+from graspgen.sim import prefilter as P
+from graspgen.sim.grippers import attach_gripper, get_gripper
 
 GRIPPER = get_gripper("robotiq_2f85")
 TARGET = "obj/0_box"

@@ -19,10 +19,10 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from graspgen.io.reader import Grasp, open_dataset
+from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.scheduler import run_pipeline
-from stages.cli import PROJECT
-from stages.reader import Grasp, open_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -138,7 +138,7 @@ def _python(code, **env):
 def test_works_with_pyarrow_alone(out):
     code = _BLOCK + textwrap.dedent(
         f"""
-        from stages.reader import open_dataset
+        from graspgen.io.reader import open_dataset
         ds = open_dataset({str(out)!r})
         t = ds.grasps(outcome="success", columns=["scene_id", "grasp_id"])
         g = ds.grasp(t["scene_id"][0].as_py(), t["grasp_id"][0].as_py())
@@ -163,7 +163,7 @@ def test_works_with_pyarrow_alone(out):
 @pytest.fixture
 def fake_torch(monkeypatch):
     """A stand-in for torch with what the adapter uses (Dataset, from_numpy), when torch is not installed."""
-    import stages.reader as reader
+    import graspgen.io.reader as reader
 
     if "torch" not in sys.modules:
         try:
@@ -183,7 +183,7 @@ def fake_torch(monkeypatch):
 
 
 def test_torch_adapter(out, fake_torch):
-    import stages.reader as reader
+    import graspgen.io.reader as reader
 
     ds = open_dataset(out)
     tds = ds.torch_dataset(labels=("outcome", "robustness", "nope"), outcome="success")

@@ -13,18 +13,11 @@ import trimesh
 from scipy.spatial.transform import Rotation
 from scipy.stats import binomtest
 
-from pipeline.config import load_config
-from pipeline.errors import ConfigError
-from pipeline.repro import shard_hashes
-from pipeline.scheduler import committed, run_pipeline
-from stages.cli import PROJECT
-from stages.contacts import closing_contacts
-from stages.grippers import attach_gripper, get_gripper
-from stages.lift import LiftParams, LiftSimulator
-from stages.mesh_prep import prepare_object
-from stages.metrics import EpsilonParams, contact_set, object_geometry
-from stages.objects import ASSETS, ObjectRecord, catalog
-from stages.robustness import (
+from graspgen.geometry.contacts import closing_contacts
+from graspgen.geometry.mesh_prep import prepare_object
+from graspgen.io.objects import ObjectRecord
+from graspgen.quality.epsilon import EpsilonParams, contact_set, object_geometry
+from graspgen.quality.robustness import (
     DRAWS_PER_COPY,
     RADIUS_AXES,
     SCHEMA,
@@ -36,7 +29,15 @@ from stages.robustness import (
     rotvec_to_matrix,
     wilson_interval,
 )
-from stages.scene_model import SupportParams, build_scene_spec, object_body_name, placed_object
+from graspgen.sim.grippers import attach_gripper, get_gripper
+from graspgen.sim.lift import LiftParams, LiftSimulator
+from graspgen.sim.scene_model import SupportParams, build_scene_spec, object_body_name, placed_object
+from graspgen_cli.app import PROJECT
+from pipeline.config import load_config
+from pipeline.errors import ConfigError
+from pipeline.repro import shard_hashes
+from pipeline.scheduler import committed, run_pipeline
+from stages.objects import ASSETS, catalog
 
 GRIPPER = get_gripper("robotiq_2f85")
 FRICTION = 0.5

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from stages.scene_model import (
+from graspgen.sim.scene_model import (
     GROUP_COLLISION,
     GROUP_SUPPORT,
     GROUP_VISUAL,
@@ -100,7 +100,7 @@ def test_names_groups_and_labels_tell_support_target_and_clutter_apart():
     # explicit inertia from the record, not from the geoms; the body frame is the mesh frame
     assert model.body("obj/0_a").mass[0] == pytest.approx(500.0 * np.prod(BOX))
     np.testing.assert_allclose(model.body("obj/0_a").ipos, 0.0, atol=1e-12)
-    # elliptic cones, impratio 10, 2 ms (stages.grippers.PhysicsOptions)
+    # elliptic cones, impratio 10, 2 ms (graspgen.sim.grippers.PhysicsOptions)
     assert (model.opt.timestep, model.opt.cone, model.opt.impratio) == (0.002, mujoco.mjtCone.mjCONE_ELLIPTIC, 10.0)
 
 

@@ -14,15 +14,11 @@ import trimesh
 from PIL import Image
 from typer.testing import CliRunner
 
-from pipeline.config import load_config
-from pipeline.errors import ConfigError, StageError
-from pipeline.io import write_h5
-from pipeline.repro import shard_hashes
-from pipeline.scheduler import committed, run_pipeline
-from pipeline.stage import Upstream
-from stages.cli import PROJECT, app
-from stages.objects import ObjectRecord, read_object
-from stages.scene_model import (
+from graspgen.errors import SimulationError
+from graspgen.io.files import write_h5
+from graspgen.io.objects import ObjectRecord, read_object
+from graspgen.io.scenes import read_scene
+from graspgen.sim.scene_model import (
     SEG_GROUND,
     SEG_SUPPORT,
     SupportParams,
@@ -31,16 +27,15 @@ from stages.scene_model import (
     set_object_poses,
     transform_points,
 )
-from stages.scenes import (
-    ScenesParams,
-    ScenesStage,
-    choose_objects,
-    colorize_depth,
-    contact_sheet,
-    make_scene,
-    read_scene,
-    scene_spec,
-)
+from graspgen.sim.scenes import ScenesParams, choose_objects, make_scene, scene_spec
+from graspgen.viz.scenes import colorize_depth, contact_sheet
+from graspgen_cli.app import PROJECT, app
+from pipeline.config import load_config
+from pipeline.errors import ConfigError, StageError
+from pipeline.repro import shard_hashes
+from pipeline.scheduler import committed, run_pipeline
+from pipeline.stage import Upstream
+from stages.scenes import ScenesStage
 
 OBJECTS = ["box", "cylinder", "l_bracket", "wedge"]
 CHEAP = [
@@ -82,7 +77,14 @@ def records(upstream):
 
 def scene(params: ScenesParams, upstream, seed: int, folder: Path, name: str = "scene"):
     """Make a scene with ``rng = default_rng(seed)``, write its shard to ``folder`` and read it back."""
-    made = make_scene(f"scene_{seed:06d}", params, upstream, np.random.default_rng(seed))
+    made = make_scene(
+        f"scene_{seed:06d}",
+        params,
+        upstream.ids("objects"),
+        lambda name: read_object(upstream.path("objects", name)),
+        lambda name: upstream.key("objects", name),
+        np.random.default_rng(seed),
+    )
     path = folder / f"{name}_{seed}.h5"
     write_h5(path, made.tree)
     return read_scene(path), made.meta
@@ -317,12 +319,12 @@ def test_a_scene_that_cannot_be_placed_is_reported_not_retried_forever(upstream,
     crowded = ScenesParams(
         objects_per_scene=12, replace=True, max_tries=5, max_scene_tries=3, support=SupportParams(area=(0.1, 0.1))
     )
-    with pytest.raises(StageError, match=r"scene_000000: no scene could be made in 3 draws \(objects left out"):
+    with pytest.raises(SimulationError, match=r"scene_000000: no scene could be made in 3 draws \(objects left out"):
         scene(crowded, upstream, 0, tmp_path)
 
 
 def _record_tree(record: ObjectRecord) -> dict:
-    """An objects-stage shard of ``record`` (the layout of :func:`stages.objects.object_tree`)."""
+    """An objects-stage shard of ``record`` (the layout of :func:`graspgen.io.objects.object_tree`)."""
     v_off = np.cumsum([0] + [len(v) for v, _ in record.convex_parts])
     f_off = np.cumsum([0] + [len(f) for _, f in record.convex_parts])
     return {
@@ -380,7 +382,7 @@ def test_on_unstable_retry_draws_the_scene_again(wobbly_library, tmp_path):
         retries += meta["scene_retries"]
     assert retries > 0
     always = ScenesParams(choice="fixed", objects=("box", "wobbly"), max_scene_tries=2)
-    with pytest.raises(StageError, match=r"unstable \(fallen/tipped/moving\): 0/2/0"):
+    with pytest.raises(SimulationError, match=r"unstable \(fallen/tipped/moving\): 0/2/0"):
         scene(always, wobbly_library, 0, tmp_path)
 
 

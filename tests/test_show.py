@@ -11,14 +11,14 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
+from graspgen.io.arrow import column_array
+from graspgen.io.objects import read_object
+from graspgen.sim.rollouts import scene_simulator
+from graspgen.sim.scene_model import object_body_name
+from graspgen.viz.rollout_movie import Frame, pick_frames, record_rollout, side_cameras
+from graspgen_cli.app import PROJECT, app, find_shard
 from pipeline.config import load_config
 from pipeline.scheduler import run_pipeline
-from stages.cli import PROJECT, app, find_shard
-from stages.grasps import column_array
-from stages.objects import read_object
-from stages.rollouts import scene_simulator
-from stages.scene_model import object_body_name
-from stages.show import Frame, pick_frames, record_rollout, side_cameras
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 runner = CliRunner()

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-import stages.wrench as wrench
-from stages.wrench import (
+import graspgen.quality.wrench as wrench
+from graspgen.quality.wrench import (
     ferrari_canny,
     ferrari_canny_from_wrenches,
     force_closure,

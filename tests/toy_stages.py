@@ -7,16 +7,26 @@ their sum. A task whose id starts with ``bad`` raises, to exercise failure handl
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from pathlib import Path
 
-import numpy as np
-
-from pipeline.config import RunConfig, check
-from pipeline.errors import InputError
-from pipeline.io import read_h5, write_h5
+from pipeline.config import RunConfig
+from pipeline.errors import GenError
 from pipeline.scheduler import Project
 from pipeline.stage import RunContext, Stage, Task, Upstream
+
+
+class InputError(GenError):
+    """A toy input that cannot be used."""
+
+
+def write_json(path: Path, tree: dict) -> None:
+    path.write_text(json.dumps(tree, sort_keys=True))
+
+
+def read_json(path: Path) -> dict:
+    return json.loads(Path(path).read_text())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,7 +41,8 @@ class NumbersParams:
     """Optional raw input whose bytes enter every key."""
 
     def __post_init__(self) -> None:
-        check("size", self.size > 0, "be > 0", self.size)
+        if self.size <= 0:
+            raise ValueError(f"size: must be > 0, got {self.size!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +61,7 @@ class ToyConfig:
 class NumbersStage(Stage):
     name = "numbers"
     version = 1
+    ext = "json"
 
     def tasks(self, params: NumbersParams, upstream: Upstream) -> list[Task]:
         inputs = (params.input_file,) if params.input_file else ()
@@ -60,7 +72,7 @@ class NumbersStage(Stage):
         if task.id.startswith("bad"):
             raise InputError(f"{task.id}: this input is broken on purpose")
         time.sleep(params.sleep)
-        write_h5(out, {"x": rng.normal(size=params.size), "@attrs": {"id": task.id}})
+        write_json(out, {"x": rng.normal(size=params.size).tolist(), "id": task.id})
         return {"n": params.size}
 
 
@@ -68,17 +80,18 @@ class SumsStage(Stage):
     name = "sums"
     inputs = ("numbers",)
     version = 1
+    ext = "json"
 
     def tasks(self, params: SumsParams, upstream: Upstream) -> list[Task]:
         return [Task(id="total")]
 
     def run(self, task, params, upstream, rng, out: Path, ctx: RunContext):
-        total = sum(float(read_h5(upstream.path("numbers", i))["x"].sum()) for i in upstream.ids("numbers"))
-        write_h5(out, {"total": np.float64(total * params.scale)})
+        total = sum(sum(read_json(upstream.path("numbers", i))["x"]) for i in upstream.ids("numbers"))
+        write_json(out, {"total": total * params.scale})
         return {"inputs": len(upstream.ids("numbers"))}
 
     def publish(self, params, shards: Upstream, dest: Path) -> None:
-        total = float(read_h5(shards.path("sums", "total"))["total"])
+        total = float(read_json(shards.path("sums", "total"))["total"])
         (dest / "published").mkdir(exist_ok=True)
         (dest / "published" / "total.txt").write_text(f"{total!r} from {len(shards.ids('numbers'))} shards\n")
 

@@ -1,13 +1,13 @@
 """The grasp-and-lift protocol in MuJoCo and its outcome labels (DESIGN sections 4, 5.4, 6).
 
 :class:`LiftSimulator` takes a compiled scene (ground / support geoms, free object bodies, a floating gripper attached
-with :func:`stages.grippers.attach_gripper`) and rolls out grasps in it: place the gripper at the pre-grasp pose,
+with :func:`graspgen.sim.grippers.attach_gripper`) and rolls out grasps in it: place the gripper at the pre-grasp pose,
 approach, close under a force limit, lift, hold, optionally shake, and label what happened with one of six outcome
 codes (:class:`Outcome`). The rules are written out in :class:`LiftSimulator`'s docstring.
 
 Frames: a grasp is the 4x4 world pose of the gripper's TCP frame (origin midway between the pads, z = approach
 direction palm -> object, x = closing direction; the *left* jaw sits on -x, the *right* on +x) and a pad separation
-``width`` in metres (:mod:`stages.grippers`).
+``width`` in metres (:mod:`graspgen.sim.grippers`).
 
 Speed (``bench/bench_rollouts.py``; 2F-85 on the bundled box / can, one core): a successful rollout is ~490 steps
 (0.98 s simulated: 0.15 s approach, ~0.12 s closing, 0.5 s lift, 0.2 s hold); failures stop earlier. Most of a
@@ -36,7 +36,7 @@ from dataclasses import dataclass, fields
 import mujoco
 import numpy as np
 
-from stages.grippers import PhysicsOptions, jaw_opening
+from graspgen.sim.grippers import PhysicsOptions, jaw_opening
 
 __all__ = [
     "Outcome",
@@ -249,7 +249,7 @@ class LiftParams:
         self.physics_options((0.0, 0.0, -9.81))  # validates timestep, cone, impratio, integrator (names the field)
 
     def physics_options(self, gravity) -> PhysicsOptions:
-        """These physics settings as :class:`stages.grippers.PhysicsOptions`, with the scene's ``gravity``."""
+        """These physics settings as :class:`graspgen.sim.grippers.PhysicsOptions`, with the scene's ``gravity``."""
         return PhysicsOptions(timestep=self.timestep, cone=self.cone, impratio=self.impratio,
                               integrator=self.integrator, gravity=tuple(float(g) for g in gravity))
 
@@ -410,7 +410,7 @@ class LiftSimulator:
     The scene model holds the static environment (a plane named ``ground`` and/or geoms named ``support/...``;
     every geom fixed to the world counts as support, whatever its name), objects as free bodies (named
     ``obj/<index>_<name>`` by convention; any movable body that is not the gripper counts as an object), and a
-    floating gripper attached with :func:`stages.grippers.attach_gripper` under ``prefix``. Ids are looked up by
+    floating gripper attached with :func:`graspgen.sim.grippers.attach_gripper` under ``prefix``. Ids are looked up by
     name once here, never assumed by index. The simulator works on its own copy of the model: it writes the
     physics settings of ``params`` into it and sets the gripper's force limit to ``params.grip_force`` (rescaling
     the jaw damping so the jaws keep the gripper's closing speed). The caller's model is not modified.
@@ -457,7 +457,7 @@ class LiftSimulator:
         ``(nq,)`` initial configuration of the scene (e.g. settled object poses); None means ``model.qpos0``.
         The gripper's own joints in it are ignored (every rollout places the gripper).
     prefix
-        Name prefix of the gripper's elements (as given to :func:`stages.grippers.attach_gripper`).
+        Name prefix of the gripper's elements (as given to :func:`graspgen.sim.grippers.attach_gripper`).
     """
 
     def __init__(self, model: mujoco.MjModel, params: LiftParams | None = None, *, qpos=None,

@@ -5,7 +5,7 @@ Each grasp is drawn as the classic parallel-jaw "fork" marker, in 3-D and then p
 ``x = -+open_width / 2`` from the pad tips (``z = +pad_length / 2``) back to ``z = -pad_length / 2``, a palm bar
 joins their backs, and a stem of one pad length points back along -z (which way the gripper came from).
 :func:`grasp_marker_segments` gives these segments in the world frame; :func:`segment_pixels` projects them with a
-scene view's :class:`~stages.scene_model.Camera` (OpenCV convention, the same as :func:`stages.scene_model.project`);
+scene view's :class:`~graspgen.sim.scene_model.Camera` (OpenCV convention, the same as :func:`graspgen.sim.scene_model.project`);
 :func:`draw_grasps` draws them with Pillow on the view's RGB image, upscaled so that markers stay legible on a
 320 x 240 render.
 
@@ -24,10 +24,10 @@ import numpy as np
 import pyarrow as pa
 from PIL import Image, ImageDraw, ImageFont
 
-from stages.grasps import column_array
-from stages.grippers import GripperSpec, get_gripper
-from stages.scene_model import Camera, project, transform_points
-from stages.scenes import SceneRecord
+from graspgen.io.arrow import column_array
+from graspgen.io.scenes import SceneRecord
+from graspgen.sim.grippers import GripperSpec, get_gripper
+from graspgen.sim.scene_model import Camera, project, transform_points
 
 __all__ = [
     "MARKER_SEGMENTS",
@@ -69,7 +69,7 @@ LABELS: dict[str, dict[int, tuple[str, tuple[int, int, int]]]] = {
     },
 }
 """Label source -> code -> (name, RGB colour). Rollout codes are the outcome codes (DESIGN section 5.4), pre-filter
-codes those of :mod:`stages.prefilter`. The order of each dict is the priority: first in the legend, first served by
+codes those of :mod:`graspgen.sim.prefilter`. The order of each dict is the priority: first in the legend, first served by
 :func:`choose_grasps`, drawn last (on top)."""
 
 
@@ -269,9 +269,9 @@ def grasp_labels(grasps: pa.Table, rollouts: pa.Table | None = None) -> tuple[np
     Parameters
     ----------
     grasps : pyarrow.Table
-        A grasps table (:data:`stages.grasps.SCHEMA`).
+        A grasps table (:data:`graspgen.sim.scene_grasps.SCHEMA`).
     rollouts : pyarrow.Table or None
-        Its rollouts table (:data:`stages.rollouts.SCHEMA`), row for row; None labels by the pre-filter.
+        Its rollouts table (:data:`graspgen.sim.rollouts.SCHEMA`), row for row; None labels by the pre-filter.
 
     Returns
     -------

@@ -14,7 +14,7 @@ An ACRONYM grasp file is one HDF5 file per object (DESIGN sections 4 and 8)::
     gripper/configuration                      (k,)     float    the gripper's joint configuration (opening)
 
 Frames. ACRONYM poses are the gripper's **hand base** (for the Panda: the hand frame at the flange), with z the
-approach direction and x the closing direction, exactly our TCP axes (:mod:`stages.grippers`); only the origin
+approach direction and x the closing direction, exactly our TCP axes (:mod:`graspgen.sim.grippers`); only the origin
 differs: our TCP (midway between the pads) sits ``tcp_offset`` along the base's +z (0.1034 m for the Panda hand).
 :func:`tcp_from_hand_base` and :func:`hand_base_from_tcp` convert; the offset comes from the gripper the file names
 in ``gripper/type`` (``franka_panda`` is our ``panda``), so ``read_acronym(p).tcp_poses()`` gives TCP poses whatever
@@ -33,8 +33,8 @@ from typing import Any
 import h5py
 import numpy as np
 
-from pipeline.errors import InputError
-from stages.grippers import get_gripper
+from graspgen.errors import InputError
+from graspgen.sim.grippers import get_gripper
 
 __all__ = [
     "SUCCESS_KEY",
@@ -51,7 +51,7 @@ SUCCESS_KEY = "flex/object_in_gripper"
 """Key (below ``grasps/qualities``) of ACRONYM's success label."""
 
 GRIPPER_ALIASES: dict[str, str] = {"franka_panda": "panda"}
-"""ACRONYM's ``gripper/type`` names -> our gripper registry names (:data:`stages.grippers.GRIPPERS`)."""
+"""ACRONYM's ``gripper/type`` names -> our gripper registry names (:data:`graspgen.sim.grippers.GRIPPERS`)."""
 
 _FILE_NAMES = {v: k for k, v in GRIPPER_ALIASES.items()}
 """Our gripper names -> the ``gripper/type`` we write (ACRONYM's own name where it has one)."""
@@ -87,7 +87,7 @@ def tcp_from_hand_base(T_base: Any, tcp_offset: float) -> np.ndarray:
     T_base : (n, 4, 4) or (4, 4) float
         Hand-base poses (ACRONYM's ``grasps/transforms``).
     tcp_offset : float
-        m, :attr:`stages.grippers.GripperSpec.tcp_offset` of the gripper the poses belong to.
+        m, :attr:`graspgen.sim.grippers.GripperSpec.tcp_offset` of the gripper the poses belong to.
 
     Returns
     -------
@@ -111,11 +111,11 @@ def gripper_name(file_type: str) -> str:
 
     Raises
     ------
-    pipeline.errors.ConfigError
+    graspgen.errors.SettingsError
         Unknown gripper; the message lists the registered ones.
     """
     name = GRIPPER_ALIASES.get(file_type, file_type)
-    get_gripper(name)  # ConfigError listing the choices when unknown
+    get_gripper(name)  # SettingsError listing the choices when unknown
     return name
 
 
@@ -168,7 +168,7 @@ class AcronymGrasps:
 
     @property
     def gripper(self) -> str:
-        """Our registry name of the file's gripper (ConfigError when we do not know it)."""
+        """Our registry name of the file's gripper (SettingsError when we do not know it)."""
         return gripper_name(self.gripper_type)
 
     def tcp_poses(self, tcp_offset: float | None = None) -> np.ndarray:
@@ -222,7 +222,7 @@ def read_acronym(path: str | Path) -> AcronymGrasps:
 
     Raises
     ------
-    pipeline.errors.InputError
+    graspgen.errors.InputError
         The file is missing, not HDF5, or lacks / mangles a required entry; the message names the file.
     """
     path = Path(path)
@@ -302,7 +302,7 @@ def write_acronym(
     object_scale : float
         Metres per mesh-file unit.
     gripper : str
-        Our gripper name (:data:`stages.grippers.GRIPPERS`); written as ACRONYM's name where it has one
+        Our gripper name (:data:`graspgen.sim.grippers.GRIPPERS`); written as ACRONYM's name where it has one
         (``panda`` -> ``franka_panda``).
     object_mass, object_com, object_inertia, object_density, object_friction
         Optional object properties (kg, (3,) m, (3, 3) kg m^2, kg/m^3, -); omitted from the file when None.

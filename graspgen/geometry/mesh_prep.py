@@ -33,7 +33,7 @@ import numpy as np
 import trimesh
 import trimesh.poses
 
-from pipeline.errors import InputError
+from graspgen.errors import InputError
 
 __all__ = [
     "CoacdParams",

@@ -6,7 +6,7 @@ is read from its HDF5 file alone, one view at a time. It needs numpy, pyarrow an
 ``.to_pandas()`` on a table when it is installed), no MuJoCo, no torch (:class:`TorchDataset` imports it when first
 used)::
 
-    from stages.reader import open_dataset
+    from graspgen.io.reader import open_dataset
 
     ds = open_dataset("out")                      # the run folder or its dataset/ folder
     good = ds.grasps(outcome="success", columns=["scene_id", "grasp_id", "robustness"])   # a pyarrow.Table

@@ -1,7 +1,7 @@
 """Looking at rollouts: re-run one grasp of a scene and render frames of it, to see why it failed.
 
 :func:`rollout_movie` re-runs a grasp exactly as the rollouts stage did (the same compiled scene from
-:func:`stages.rollouts.scene_simulator`, the same :class:`stages.lift.LiftParams`), records the state at every
+:func:`graspgen.sim.rollouts.scene_simulator`, the same :class:`graspgen.sim.lift.LiftParams`), records the state at every
 rule check through the simulator's ``observer`` hook, keeps a few of those states (:func:`pick_frames`: the start,
 the end of every phase reached, then evenly spaced ones) and renders them from a side camera
 (:func:`side_cameras`) with MuJoCo's renderer. :func:`save_movie` writes a PNG strip or an animated GIF with the
@@ -10,7 +10,7 @@ outcome in the title. ``gen show rollout SCENE_ID GRASP_ID -o file.png|gif`` is 
 Rendering uses a second model of the same scene built with the objects' visual meshes (the simulation model has
 only their convex parts, which the renderer hides); both have the same joints, so a recorded ``qpos`` poses either.
 The physics is therefore untouched by rendering: the re-run gives the stored outcome bit for bit (a rollout depends
-only on the model and its inputs, :mod:`stages.lift`).
+only on the model and its inputs, :mod:`graspgen.sim.lift`).
 """
 
 from __future__ import annotations
@@ -29,12 +29,19 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 
-from stages.grasps import PREFILTER_NAMES, column_array  # noqa: E402
-from stages.grippers import attach_gripper, get_gripper  # noqa: E402
-from stages.lift import LiftParams, LiftSimulator, RolloutResult  # noqa: E402
-from stages.rollouts import scene_simulator  # noqa: E402
-from stages.scene_model import Camera, SceneRenderer, camera_on_sphere, intrinsics_from_fov, object_body_name  # noqa: E402
-from stages.scenes import scene_spec  # noqa: E402
+from graspgen.io.arrow import column_array  # noqa: E402
+from graspgen.sim.grippers import attach_gripper, get_gripper  # noqa: E402
+from graspgen.sim.lift import LiftParams, LiftSimulator, RolloutResult  # noqa: E402
+from graspgen.sim.rollouts import scene_simulator  # noqa: E402
+from graspgen.sim.scene_grasps import PREFILTER_NAMES  # noqa: E402
+from graspgen.sim.scene_model import (  # noqa: E402
+    Camera,
+    SceneRenderer,
+    camera_on_sphere,
+    intrinsics_from_fov,
+    object_body_name,
+)
+from graspgen.sim.scenes import scene_spec  # noqa: E402
 
 __all__ = [
     "Frame",
@@ -60,7 +67,7 @@ class Frame:
     """The simulation state at one rule check of a rollout."""
 
     phase: str
-    """Protocol phase (:data:`stages.lift.PHASES`) the state was recorded in."""
+    """Protocol phase (:data:`graspgen.sim.lift.PHASES`) the state was recorded in."""
     step: int
     """Steps simulated so far in the rollout."""
     time: float

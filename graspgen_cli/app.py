@@ -15,33 +15,11 @@ import typer  # noqa: E402
 from rich.console import Console  # noqa: E402
 
 from pipeline.cli import ConfigOpt, SetOpt, build_app, fail, load  # noqa: E402
-from pipeline.errors import GenError, StageError  # noqa: E402
+from pipeline.errors import StageError  # noqa: E402
 from pipeline.scheduler import Project, committed, plan, upstream_view  # noqa: E402
 from pipeline.stage import topological_order  # noqa: E402
 from pipeline.store import Manifest  # noqa: E402
-from stages.config import Config  # noqa: E402
-from stages.dataset import DatasetStage  # noqa: E402
-from stages.grasps import GraspsStage  # noqa: E402
-from stages.metrics import MetricsStage  # noqa: E402
-from stages.objects import ObjectsStage  # noqa: E402
-from stages.robustness import RobustnessStage  # noqa: E402
-from stages.rollouts import RolloutsStage  # noqa: E402
-from stages.scenes import ScenesStage  # noqa: E402
-
-PROJECT = Project(
-    name="gen",
-    schema=Config,
-    stages=(
-        ObjectsStage(),
-        ScenesStage(),
-        GraspsStage(),
-        RolloutsStage(),
-        RobustnessStage(),
-        MetricsStage(),
-        DatasetStage(tables=("grasps", "rollouts", "robustness", "metrics")),
-    ),
-)
-"""The stages in their declared order; the scheduler sorts them by dependency."""
+from stages.project import PROJECT, USER_ERRORS  # noqa: E402
 
 app = build_app(PROJECT)
 show_app = typer.Typer(help="Look at outputs (writes PNG images).", no_args_is_help=True)
@@ -65,7 +43,7 @@ def find_shard(project: Project, config: Any, stage: str, task_id: str) -> tuple
     for s in topological_order(project.stages, [stage]):
         try:
             planned = plan(s, s.params(config), upstream_view(out, s, keys, verify_hash=False))
-        except GenError:
+        except USER_ERRORS:
             planned = []  # e.g. upstream not run yet: fall back to whatever is on disk
         keys[s.name] = {p.key for p in planned}
         if s.name == stage:
@@ -95,7 +73,8 @@ def show_scene(
     set_: SetOpt = None,
 ) -> None:
     """Write a contact sheet of a scene (RGB | depth | segmentation per view) as PNG and print its path."""
-    from stages.scenes import contact_sheet, read_scene
+    from graspgen.io.scenes import read_scene
+    from graspgen.viz.scenes import contact_sheet
 
     console = Console(stderr=True)
     try:
@@ -103,7 +82,7 @@ def show_scene(
         path, current = find_shard(PROJECT, cfg, "scenes", scene_id)
         scene = read_scene(path)
         sheet = contact_sheet(scene, None if view is None else [view])
-    except (GenError, ValueError) as exc:
+    except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
     if not current:
         console.print(f"note: {scene_id} is from an earlier config (its key differs from the current one)")
@@ -133,8 +112,8 @@ def show_grasps(
     the scene was rolled out, else by the collision pre-filter; print the PNG's path."""
     import pyarrow.parquet as pq
 
-    from stages.grasp_view import grasp_picture, rollouts_match
-    from stages.scenes import read_scene
+    from graspgen.io.scenes import read_scene
+    from graspgen.viz.grasp_view import grasp_picture, rollouts_match
 
     console = Console(stderr=True)
     notes = []
@@ -155,7 +134,7 @@ def show_grasps(
         if not (current and grasps_current):
             notes.append(f"{scene_id} is from an earlier config (its key differs from the current one)")
         picture = grasp_picture(read_scene(scene_path), grasps, rollouts, view=view, n=num, scale=scale)
-    except (GenError, ValueError) as exc:
+    except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
     for note in notes:
         console.print(f"note: {note}", highlight=False)
@@ -181,8 +160,8 @@ def show_rollout(
     """Re-run one grasp of a scene and write frames of it (placement, approach, closing, lift) with its outcome."""
     import pyarrow.parquet as pq
 
-    from stages.objects import read_object
-    from stages.show import rollout_movie, save_movie
+    from graspgen.io.objects import read_object
+    from graspgen.viz.rollout_movie import rollout_movie, save_movie
 
     console = Console(stderr=True)
     try:
@@ -207,7 +186,7 @@ def show_rollout(
         if output is None:
             output = Path(cfg.run.out) / "show" / f"{scene_id}_g{grasp_id}.png"
         save_movie(movie, output)
-    except (GenError, ValueError) as exc:
+    except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
     if not current:
         console.print(f"note: {scene_id} is from an earlier config (its key differs from the current one)")
@@ -257,10 +236,8 @@ def evaluate(
     import numpy as np
     import pyarrow as pa
 
-    from pipeline.errors import InputError
-    from pipeline.io import write_parquet
-    from stages.acronym import read_acronym
-    from stages.evaluate import (
+    from graspgen.errors import InputError
+    from graspgen.evaluate import (
         CHEAP_COACD,
         METADATA_KEY,
         EvaluateParams,
@@ -268,7 +245,9 @@ def evaluate(
         outcome_counts,
         read_pose_table,
     )
-    from stages.grippers import get_gripper
+    from graspgen.io.acronym import read_acronym
+    from graspgen.io.files import write_parquet
+    from graspgen.sim.grippers import get_gripper
 
     console = Console(stderr=True)
     try:
@@ -283,7 +262,7 @@ def evaluate(
             acr = read_acronym(grasps)
             try:
                 T = acr.tcp_poses()
-            except GenError as exc:
+            except USER_ERRORS as exc:
                 raise InputError(f"{grasps}: gripper/type {acr.gripper_type!r}: {exc}") from None
             widths = None
             root = mesh_root if mesh_root is not None else Path.cwd()
@@ -317,7 +296,7 @@ def evaluate(
         table = evaluate_grasps(
             mesh_path, scale, T, widths, gripper, params, free_space=not support, jobs=jobs, cache_dir=cfg.run.cache_dir
         )
-    except (GenError, ValueError) as exc:
+    except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
     if reference is not None:  # keep the file's own label next to ours, for comparison
         table = table.append_column("reference_success", pa.array(np.asarray(reference, dtype=np.int8)))
@@ -343,7 +322,7 @@ def report_cmd(
     console = Console(stderr=True)
     try:
         path = report(out)
-    except GenError as exc:
+    except USER_ERRORS as exc:
         fail(console, str(exc))
     print(path)
 
@@ -358,7 +337,7 @@ def validate_cmd(
     console = Console(stderr=True)
     try:
         problems, checked = validate(out)
-    except GenError as exc:
+    except USER_ERRORS as exc:
         fail(console, str(exc))
     if problems:
         console.print(f"[bold red]{len(problems)} problem(s)[/] in {out} ({checked} files checked):", highlight=False)

@@ -26,7 +26,7 @@ Which object is the *target* of a grasp is a choice of the grasp stage; every ot
 (:func:`geom_labels` maps any geom to its object index, :data:`SEG_SUPPORT` or :data:`SEG_GROUND`). Collision
 parts are in group 3, which MuJoCo's viewer and renderer hide by default, so images show the true visual mesh.
 
-Physics: :class:`stages.grippers.PhysicsOptions` (2 ms, elliptic cones, impratio 10, implicitfast); mass,
+Physics: :class:`graspgen.sim.grippers.PhysicsOptions` (2 ms, elliptic cones, impratio 10, implicitfast); mass,
 centre of mass and inertia come from the object record (``inertiafromgeom`` is off), never from the geoms.
 Friction: objects carry their own sliding friction; support geoms carry ``SupportParams.friction``. MuJoCo has
 no per-pair friction: at equal priority it uses the *larger* of the two geoms' coefficients.
@@ -69,9 +69,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from pipeline.config import check  # noqa: E402
-from pipeline.errors import StageError  # noqa: E402
-from stages.grippers import PhysicsOptions  # noqa: E402
+from graspgen.errors import RenderError, SimulationError  # noqa: E402
+from graspgen.sim.grippers import PhysicsOptions  # noqa: E402
+from graspgen.validation import check  # noqa: E402
 
 __all__ = [
     "GROUP_SUPPORT",
@@ -300,7 +300,7 @@ class PlacedObject:
 
 
 def placed_object(record: Any, pose: np.ndarray, friction: float, *, rgba=None, visual: bool = True) -> PlacedObject:
-    """A :class:`PlacedObject` from an :class:`stages.objects.ObjectRecord` (``read_object``) at ``pose``."""
+    """A :class:`PlacedObject` from an :class:`graspgen.io.objects.ObjectRecord` (``read_object``) at ``pose``."""
     return PlacedObject(
         name=record.name,
         convex_parts=record.convex_parts,
@@ -377,7 +377,7 @@ def build_scene_spec(
     Returns
     -------
     mujoco.MjSpec
-        Compile with ``spec.compile()``; attach a gripper to it with :func:`stages.grippers.attach_gripper`.
+        Compile with ``spec.compile()``; attach a gripper to it with :func:`graspgen.sim.grippers.attach_gripper`.
     """
     if not isinstance(support, SupportParams):
         raise ValueError(f"support: must be a SupportParams, got {type(support).__name__}")
@@ -666,7 +666,7 @@ def settle(model: mujoco.MjModel, data: mujoco.MjData, params: SettleParams) -> 
     for _ in range(max_checks):
         mujoco.mj_step(model, data, nstep=steps_per_check)
         if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
-            raise StageError("scene simulation diverged (non-finite state); check the object masses and meshes")
+            raise SimulationError("scene simulation diverged (non-finite state); check the object masses and meshes")
         new_com, new_rot = _com_and_rotation(model, object_poses(model, data))
         lin = np.linalg.norm(new_com - com, axis=1) / window
         cos = (np.einsum("nij,nij->n", new_rot, rot) - 1) / 2  # trace(R_new R_old^T) = 1 + 2 cos(angle)
@@ -814,10 +814,6 @@ def _gl_backend_note() -> str:
             "backend: set MUJOCO_GL in the environment before Python starts"
         )
     return f"MUJOCO_GL={env!r}"
-
-
-class RenderError(StageError):
-    """No offscreen OpenGL context could be made (see the module docstring on ``MUJOCO_GL``)."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

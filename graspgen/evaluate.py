@@ -1,8 +1,8 @@
 """Label someone else's grasps with our simulator: grasp poses for one object in, one outcome per grasp out.
 
 :func:`evaluate_grasps` takes a mesh file and TCP poses in its (scaled) mesh frame, e.g. from an ACRONYM file
-(:func:`stages.acronym.read_acronym`) or a Parquet table of poses (:func:`read_pose_table`), and rolls every grasp
-out with :class:`stages.lift.LiftSimulator`. ``gen evaluate`` is the command line for it.
+(:func:`graspgen.io.acronym.read_acronym`) or a Parquet table of poses (:func:`read_pose_table`), and rolls every grasp
+out with :class:`graspgen.sim.lift.LiftSimulator`. ``gen evaluate`` is the command line for it.
 
 Two protocols:
 
@@ -15,15 +15,15 @@ Two protocols:
   most probable stable pose, settled in MuJoCo, with gravity throughout; the grasps are moved with it
   (``T_world = T_world_object @ T_object``). Grasps from below the table top are collisions with the ground (0).
 
-The object is prepared with :func:`stages.mesh_prep.prepare_object` (repair, units, mass from density, CoACD with
+The object is prepared with :func:`graspgen.geometry.mesh_prep.prepare_object` (repair, units, mass from density, CoACD with
 cheap settings unless configured, cached by mesh hash). Gripper opening: the given widths (the jaws open to
 ``width + width_margin``), or, without widths, the width found by closing the pads onto the mesh with ray casts
-(:func:`stages.contacts.closing_contacts`); a grasp whose pads touch nothing that way opens fully (it will most
+(:func:`graspgen.geometry.contacts.closing_contacts`); a grasp whose pads touch nothing that way opens fully (it will most
 likely close on air: 3).
 
 Parallelism: the grasps are cut into ``jobs`` contiguous chunks run by joblib workers; each worker builds and
 compiles its own model once (a compiled model is never pickled) and rolls its chunk out in order, so the output is
-in input order and, like every rollout (:mod:`stages.lift`), independent of ``jobs``.
+in input order and, like every rollout (:mod:`graspgen.sim.lift`), independent of ``jobs``.
 
 Output: one row per input grasp, in input order (:data:`SCHEMA`):
 
@@ -31,7 +31,7 @@ Output: one row per input grasp, in input order (:data:`SCHEMA`):
 column               type            meaning
 ===================  ==============  =====================================================================
 index                int32           row of the input (0..n-1)
-outcome              int8            0-5 (:class:`stages.lift.Outcome`)
+outcome              int8            0-5 (:class:`graspgen.sim.lift.Outcome`)
 outcome_name         string          its name
 decided_in           string          protocol phase that decided it
 steps                int32           simulated steps
@@ -68,13 +68,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import trimesh
 
-from pipeline.errors import InputError
-from stages.contacts import closing_contacts
-from stages.grasps import fixed_list
-from stages.grippers import attach_gripper, get_gripper
-from stages.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, RolloutResult
-from stages.mesh_prep import CoacdParams, StablePoseParams, prepare_object
-from stages.scene_model import (
+from graspgen.errors import InputError
+from graspgen.geometry.contacts import closing_contacts
+from graspgen.geometry.mesh_prep import CoacdParams, StablePoseParams, prepare_object
+from graspgen.io.arrow import fixed_list
+from graspgen.sim.grippers import attach_gripper, get_gripper
+from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, RolloutResult
+from graspgen.sim.scene_model import (
     GROUND_NAME,
     SUPPORT_PREFIX,
     PlacedObject,
@@ -201,7 +201,7 @@ def read_pose_table(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
 
     Raises
     ------
-    pipeline.errors.InputError
+    graspgen.errors.InputError
         Not a Parquet file, or no pose column / wrong lengths; the message names the file.
     """
     path = Path(path)
@@ -299,7 +299,7 @@ def evaluate_grasps(
     widths : (n,) float or None
         Pad separation (m) per grasp; None finds it by ray casting (pads touching nothing: open fully).
     gripper : str
-        Gripper name (:data:`stages.grippers.GRIPPERS`).
+        Gripper name (:data:`graspgen.sim.grippers.GRIPPERS`).
     params : EvaluateParams, optional
         Protocol, object properties, CoACD settings; default ``EvaluateParams()``.
     free_space : bool
@@ -317,9 +317,9 @@ def evaluate_grasps(
 
     Raises
     ------
-    pipeline.errors.InputError
+    graspgen.errors.InputError
         The mesh cannot be used (missing, broken, absurd size); the message names the file.
-    pipeline.errors.ConfigError
+    graspgen.errors.SettingsError
         Unknown gripper (the message lists the choices).
     ValueError
         Poses or widths of the wrong shape, non-finite, or not rigid (the message names the first bad index).

@@ -75,7 +75,7 @@ from dataclasses import dataclass, fields
 import mujoco
 import numpy as np
 
-from pipeline.errors import ConfigError
+from graspgen.errors import SettingsError
 
 __all__ = [
     "Box",
@@ -334,11 +334,11 @@ def jaw_opening(width, width_margin: float, min_width: float, max_width: float) 
 
 
 def get_gripper(name: str) -> GripperSpec:
-    """The registered :class:`GripperSpec` called ``name``; :class:`ConfigError` listing the choices otherwise."""
+    """The registered :class:`GripperSpec` called ``name``; :class:`SettingsError` listing the choices otherwise."""
     try:
         return GRIPPERS[name]
     except (KeyError, TypeError):
-        raise ConfigError(f"gripper: unknown {name!r}; choose one of: {', '.join(sorted(GRIPPERS))}") from None
+        raise SettingsError(f"gripper: unknown {name!r}; choose one of: {', '.join(sorted(GRIPPERS))}") from None
 
 
 # ---------------------------------------------------------------------------------------------------------------

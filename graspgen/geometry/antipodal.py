@@ -26,7 +26,7 @@ Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
      is still graspable in an 85 mm gripper although 70 mm + ``width_margin`` exceeds the stroke.
 
 5. **Orientations.** The TCP frame has ``x = (p2 - p1) / width`` (``p1`` is the *left* pad's contact, on -x;
-   ``p2`` the *right* pad's, on +x: :mod:`stages.grippers`). ``num_orientations`` approach axes ``z`` perpendicular
+   ``p2`` the *right* pad's, on +x: :mod:`graspgen.sim.grippers`). ``num_orientations`` approach axes ``z`` perpendicular
    to ``x`` are evenly spaced about ``x``, starting at a random phase (one per ray, from ``rng``); ``y = z x x``, so
    ``[x y z]`` is a proper rotation.
 6. **Approach filter** on the world-frame approach axis ``z_w = R_object z`` (``object_pose`` places the object):
@@ -65,7 +65,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from stages.grippers import GripperSpec
+from graspgen.sim.grippers import GripperSpec
 
 __all__ = [
     "APPROACH_MODES",
@@ -365,7 +365,7 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     ----------
     mesh
         The object's surface in its OBJECT frame (m), watertight with outward normals (as
-        :func:`stages.mesh_prep.repair_mesh` leaves it). Its ray intersector is cached on the mesh, so reuse one
+        :func:`graspgen.geometry.mesh_prep.repair_mesh` leaves it). Its ray intersector is cached on the mesh, so reuse one
         mesh object across calls.
     gripper
         Gives the opening range ``[min_width, max_width]``.

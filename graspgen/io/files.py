@@ -7,6 +7,7 @@ metadata.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -129,3 +130,12 @@ def write_parquet(path: str | Path, table: pa.Table, *, row_group_size: int = 65
         write_statistics=True,
         store_schema=True,
     )
+
+
+def sha256_file(path: str | Path) -> str:
+    """Hex sha256 of a file's bytes (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

@@ -23,7 +23,7 @@ obstacle thinner than the spacing ``approach_distance / (num_approach_samples - 
 Scene conventions (how geoms are classified): a geom belongs to the body tree rooted at a child of the world body.
 Roots named ``obj/...`` (``obj/<index>_<name>``) are objects; the target is named by its root body; every other
 non-gripper geom (a plane named ``ground``, ``support/...`` geoms, anything else static) is ground/support. Gripper
-geoms are found by name (:func:`stages.grippers.gripper_geom_ids`).
+geoms are found by name (:func:`graspgen.sim.grippers.gripper_geom_ids`).
 
 Speed (why the checker owns a private compiled model): the world is compiled once with the gripper attached, one
 :class:`mujoco.MjData` is reused, and the geoms' contact bitmasks are rewritten in that private model so that only
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from stages.grippers import GripperSpec, attach_gripper, gripper_geom_ids, jaw_opening
+from graspgen.sim.grippers import GripperSpec, attach_gripper, gripper_geom_ids, jaw_opening
 
 __all__ = [
     "FREE",
@@ -132,7 +132,7 @@ class PrefilterParams:
     > 0 demands that much clearance (conservative); < 0 tolerates penetration up to ``-margin``."""
     width_margin: float = 0.02
     """The gripper is opened to ``width + width_margin`` (m, >= 0; clipped to the gripper's range). Use the same
-    value as :attr:`stages.antipodal.AntipodalParams.width_margin` and as the rollout."""
+    value as :attr:`graspgen.geometry.antipodal.AntipodalParams.width_margin` and as the rollout."""
 
     def __post_init__(self) -> None:
         _check_number("approach_distance", self.approach_distance, low=0.0)
@@ -166,7 +166,7 @@ class CollisionChecker:
         The scene as an :class:`mujoco.MjSpec`: support geoms, objects as bodies ``obj/<index>_<name>`` (mesh geoms)
         at their poses (free joints at ``qpos0`` = their spec pose). It is copied, never modified. If it already
         holds a gripper named ``name_prefix`` (a body ``<name_prefix>base``), that one is used (``gripper`` must
-        describe it); otherwise ``gripper`` is attached with :func:`stages.grippers.attach_gripper`. Every geom whose
+        describe it); otherwise ``gripper`` is attached with :func:`graspgen.sim.grippers.attach_gripper`. Every geom whose
         name starts with ``name_prefix`` is the gripper's.
     gripper
         The gripper whose geoms are checked; gives the opening range.

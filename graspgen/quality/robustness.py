@@ -1,0 +1,602 @@
+"""Stage 5, ``robustness``: how often a successful grasp still succeeds when it is placed with error.
+
+One task per scene (inputs rollouts, grasps, scenes, objects). The scene and the gripper are compiled once per
+task (:func:`graspgen.sim.rollouts.scene_simulator`, the rollouts stage's protocol ``rollouts.lift``). For every grasp
+whose rollout succeeded (outcome 5), ``num_perturbations`` perturbed copies are rolled out in that same model:
+
+* the TCP pose ``T`` (world) becomes ``T @ [R(w) | t]``: a translation ``t ~ N(0, translation_sigma^2 I)`` (m) and a
+  rotation by the rotation vector ``w ~ N(0, rotation_sigma^2 I)`` (rad), both in the TCP frame (x closing,
+  z approach), the rotation about the TCP origin. The width (and so the opening) stays the nominal one: the
+  controller does not know the error;
+* with ``object_noise``, the target object is also moved at placement by a planar error: ``N(0,
+  object_translation_sigma^2)`` along world x and y and a yaw ``N(0, object_rotation_sigma^2)`` about the vertical
+  line through its centre of mass. Planar, so the object still rests on its support in the same stable pose. A moved
+  object can start touching a neighbour; the physics resolves that and the rules may then label the copy 1 or 2.
+  Each noisy copy builds its own :class:`graspgen.sim.lift.LiftSimulator` (a copy of the compiled model, ~1 ms).
+
+Labels per grasp: ``robustness`` = successes / n, the fraction of copies with outcome 5 (never an average of outcome
+codes), with its Wilson score 95% interval (:func:`wilson_interval`); the epsilon of every copy (its contacts, by
+the rule of :mod:`stages.metrics`: the copy's rollout contacts when both jaws touched, taken to the object frame with
+the object's pose recorded at the end of closing, so exactly; else ray-cast closing contacts at the copy's pose
+relative to the object; the contact model of ``metrics.epsilon``); ``pfc`` = the fraction of copies with epsilon >
+``epsilon_delta`` (probability of force closure, Weisz and Allen). Grasps that did not succeed get ``n = 0`` and NaN
+labels: a robustness of 0 would read as "tried and failed", which was not measured (filter on outcome 5).
+
+Optional robustness radius (``radius: true``): along each of the six TCP axes (translation along x, y, z in m;
+rotation about x, y, z in rad), the largest offset that still succeeds, by bisection on ``[0, radius_max_*]`` in each
+direction (``radius_iterations`` halvings after a first try at the maximum; a copy succeeding at the maximum gives
+the maximum). The column holds the smaller of the two directions. Bisection finds *a* boundary: where success is
+not monotone along the axis the radius is one of the edges, not necessarily the first. No randomness.
+
+Randomness: all draws for a scene are made up front from the task's generator, ``(grasps, n, 9)`` standard normals
+in grasp order (for every grasp, successful or not), so a grasp's perturbations depend only on the task key and its
+row, never on scheduling, worker count or the other grasps' outcomes.
+
+Output per scene: one Parquet table, one row per grasp of the grasps table, joined on ``(scene_id, grasp_id)``:
+
+==================  ==============  =========================================================================
+column              type            meaning
+==================  ==============  =========================================================================
+scene_id, grasp_id  string, int32   the grasp
+n                   int32           perturbed copies rolled out (0 unless the grasp's outcome is 5)
+successes           int32           copies with outcome 5
+robustness          float64         successes / n, in [0, 1]; NaN when n = 0
+robustness_lo/_hi   float64         Wilson score 95% interval of the success rate; NaN when n = 0
+pfc                 float64         fraction of copies with epsilon > ``epsilon_delta``; NaN when n = 0
+copy_outcomes       list<int8>      outcome code 0-5 of each copy, n values
+copy_epsilon        list<float64>   epsilon of each copy, n values
+radius_x/_y/_z      float64         robustness radius along the TCP axes, m; NaN when off or n = 0
+radius_rx/_ry/_rz   float64         robustness radius about the TCP axes, rad; NaN when off or n = 0
+==================  ==============  =========================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from typing import Any
+
+import mujoco
+import numpy as np
+import pyarrow as pa
+
+from graspgen.geometry.contacts import closing_contacts
+from graspgen.io.arrow import column_array
+from graspgen.io.objects import ObjectRecord
+from graspgen.quality.epsilon import (
+    CONTACT_SOURCES,
+    EpsilonParams,
+    ObjectGeometry,
+    check_joined,
+    contact_set,
+    object_geometry,
+)
+from graspgen.sim.grippers import GripperSpec, get_gripper
+from graspgen.sim.lift import LiftParams, LiftSimulator, Outcome, RolloutResult
+from graspgen.sim.scene_model import object_body_name
+from graspgen.validation import check
+
+__all__ = [
+    "DRAWS_PER_COPY",
+    "RADIUS_AXES",
+    "RobustnessParams",
+    "RobustnessTaskParams",
+    "GraspRobustness",
+    "SCHEMA",
+    "wilson_interval",
+    "rotvec_to_matrix",
+    "perturbed_poses",
+    "grasp_robustness",
+    "robustness_radius",
+    "scene_robustness",
+]
+
+RADIUS_AXES = ("x", "y", "z", "rx", "ry", "rz")
+"""Axes of the robustness radius: translation along the TCP x, y, z axes, then rotation about them."""
+
+DRAWS_PER_COPY = 9
+"""Standard normals drawn per perturbed copy: TCP translation (3), TCP rotation vector (3), object x, y, yaw (3)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustnessParams:
+    """Settings of the ``robustness`` stage (config section ``robustness``).
+
+    The rollout protocol is the rollouts stage's (``rollouts.lift``) and the epsilon of the copies follows
+    ``metrics.epsilon``: both enter this stage's key."""
+
+    num_perturbations: int = 20
+    """Perturbed copies rolled out per successful grasp."""
+    translation_sigma: float = 0.005
+    """Standard deviation (m) of the TCP translation error along each TCP axis. Compare it with the jaws' clearance,
+    ``rollouts.lift.width_margin / 2`` per side (10 mm by default; less for widths near the stroke): a copy offset
+    by more than that along the closing axis lands a finger on the target at placement (code 1) or pushes it during
+    the approach (code 1 beyond ``rollouts.lift.max_target_shift``)."""
+    rotation_sigma: float = math.radians(5.0)
+    """Standard deviation (rad) of each component of the TCP rotation error (a rotation vector in the TCP frame)."""
+    object_noise: bool = False
+    """Also move the target object at placement (planar: world x, y and yaw about its centre of mass)."""
+    object_translation_sigma: float = 0.005
+    """Standard deviation (m) of the object's x and y error (with ``object_noise``)."""
+    object_rotation_sigma: float = math.radians(5.0)
+    """Standard deviation (rad) of the object's yaw error (with ``object_noise``)."""
+    epsilon_delta: float = 0.0
+    """``pfc`` counts copies with epsilon > this (0: the probability of force closure itself)."""
+    radius: bool = False
+    """Also bisect the robustness radius along each TCP axis (12 bisections per grasp: costly)."""
+    radius_max_translation: float = 0.02
+    """Largest translation (m) the radius search tries."""
+    radius_max_rotation: float = 0.5
+    """Largest rotation (rad) the radius search tries."""
+    radius_iterations: int = 5
+    """Halvings per bisection (resolution: the maximum / 2^iterations)."""
+
+    def __post_init__(self) -> None:
+        check("num_perturbations", self.num_perturbations >= 1, "be >= 1", self.num_perturbations)
+        for name in ("translation_sigma", "rotation_sigma", "object_translation_sigma", "object_rotation_sigma",
+                     "epsilon_delta"):
+            value = getattr(self, name)
+            check(name, 0 <= value < math.inf, "be >= 0", value)
+        check("radius_max_translation", 0 < self.radius_max_translation < math.inf, "be > 0",
+              self.radius_max_translation)
+        check("radius_max_rotation", 0 < self.radius_max_rotation <= math.pi, "be in (0, pi] rad",
+              self.radius_max_rotation)
+        check("radius_iterations", 1 <= self.radius_iterations <= 30, "be in [1, 30]", self.radius_iterations)
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustnessTaskParams:
+    """Everything a robustness task depends on (what enters its key): its own section, the rollout protocol and
+    the epsilon model. Built by :meth:`RobustnessStage.params` from the config."""
+
+    robustness: RobustnessParams = dataclasses.field(default_factory=RobustnessParams)
+    lift: LiftParams = dataclasses.field(default_factory=LiftParams)
+    epsilon: EpsilonParams = dataclasses.field(default_factory=EpsilonParams)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Maths
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _check_count(name: str, value: Any) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 0:
+        raise ValueError(f"{name}: expected an integer >= 0, got {value!r}")
+    return int(value)
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion.
+
+    Parameters
+    ----------
+    successes : int
+        Successes, ``0 <= successes <= n``.
+    n : int
+        Trials, ``>= 0``.
+    z : float
+        Standard normal quantile (1.96: 95% two-sided).
+
+    Returns
+    -------
+    (lo, hi) : floats in [0, 1]; ``(nan, nan)`` when ``n = 0`` (no trials: no information).
+
+    Notes
+    -----
+    ``(p + z^2 / 2n -+ z sqrt(p (1 - p) / n + z^2 / 4n^2)) / (1 + z^2 / n)`` with ``p = successes / n``. Unlike the
+    normal (Wald) interval it stays inside [0, 1] and does not collapse to a point at 0/n or n/n: for 0/n it is
+    ``[0, z^2 / (n + z^2)]``.
+    """
+    successes, n = _check_count("successes", successes), _check_count("n", n)
+    if successes > n:
+        raise ValueError(f"successes: must be <= n ({n}), got {successes}")
+    if isinstance(z, bool) or not isinstance(z, numbers.Real) or not (0 < z < math.inf):
+        raise ValueError(f"z: must be a finite number > 0, got {z!r}")
+    if n == 0:
+        return math.nan, math.nan
+    p = successes / n
+    z2 = z * z
+    denom = 1.0 + z2 / n
+    centre = (p + z2 / (2 * n)) / denom
+    half = z * math.sqrt(p * (1.0 - p) / n + z2 / (4.0 * n * n)) / denom
+    # Clamp: at 0/n and n/n the bound is 0 or 1 up to round-off.
+    lo = 0.0 if successes == 0 else max(0.0, centre - half)
+    hi = 1.0 if successes == n else min(1.0, centre + half)
+    return lo, hi
+
+
+def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrices of rotation vectors (axis times angle, rad): ``(n, 3) -> (n, 3, 3)`` (Rodrigues)."""
+    v = np.asarray(rotvec, dtype=np.float64).reshape(-1, 3)
+    theta2 = np.einsum("ij,ij->i", v, v)
+    theta = np.sqrt(theta2)
+    small = theta < 1e-6
+    safe = np.where(small, 1.0, theta)
+    # sin(t)/t and (1 - cos t)/t^2, with their Taylor series near 0 (where the closed forms lose precision).
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    K = np.zeros((len(v), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def perturbed_poses(T: np.ndarray, translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """``T @ [R(rotation_i) | translation_i]`` for each row: poses perturbed in their own (TCP) frame.
+
+    Parameters
+    ----------
+    T : (4, 4) float
+        The nominal pose (e.g. TCP to world).
+    translation : (n, 3) float, m
+        Offsets of the origin, along T's own axes.
+    rotation : (n, 3) float, rad
+        Rotation vectors in T's own frame (the rotation is about T's origin, applied before the offset moves it).
+
+    Returns
+    -------
+    (n, 4, 4) float
+    """
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"T: expected shape (4, 4), got {T.shape}")
+    t = np.asarray(translation, dtype=np.float64).reshape(-1, 3)
+    w = np.asarray(rotation, dtype=np.float64).reshape(-1, 3)
+    if len(t) != len(w):
+        raise ValueError(f"rotation: expected {len(t)} rows (as translation), got {len(w)}")
+    D = np.zeros((len(t), 4, 4))
+    D[:, :3, :3] = rotvec_to_matrix(w)
+    D[:, :3, 3] = t
+    D[:, 3, 3] = 1.0
+    return T @ D
+
+
+def planar_object_noise(T_world_object: np.ndarray, center_of_mass: np.ndarray, dx: float, dy: float,
+                        yaw: float) -> np.ndarray:
+    """The object pose ``T_world_object (4, 4)`` turned by ``yaw`` (rad) about the vertical line through its centre
+    of mass (``center_of_mass (3,)``, mesh frame, m) and shifted by ``(dx, dy)`` m in the world x/y plane."""
+    T = np.asarray(T_world_object, dtype=np.float64)
+    c, s = math.cos(yaw), math.sin(yaw)
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    com_world = T[:3, :3] @ center_of_mass + T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = Rz @ T[:3, :3]
+    out[:3, 3] = Rz @ (T[:3, 3] - com_world) + com_world + (dx, dy, 0.0)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Rolling out perturbed copies
+# ---------------------------------------------------------------------------------------------------------------
+
+
+def _pose(pos: np.ndarray, mat: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(mat, dtype=np.float64).reshape(3, 3)
+    T[:3, 3] = pos
+    return T
+
+
+def _free_qadr(model: mujoco.MjModel, body: int) -> int:
+    """qpos address of the free joint of ``body`` (an object of the scene)."""
+    jnt = int(model.body_jntadr[body])
+    if jnt < 0 or model.jnt_type[jnt] != mujoco.mjtJoint.mjJNT_FREE:
+        raise ValueError(f"target_body: body {body} has no free joint")
+    return int(model.jnt_qposadr[jnt])
+
+
+def initial_object_pose(simulator: LiftSimulator, target_body: str) -> np.ndarray:
+    """(4, 4) pose (mesh frame to world) of ``target_body`` in the model's ``qpos0``: the scene at rest for a
+    simulator built by :func:`graspgen.sim.rollouts.scene_simulator` (object noise is applied to this pose)."""
+    m = simulator.model
+    bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, target_body)
+    if bid < 0:
+        raise ValueError(f"target_body: no body named {target_body!r}")
+    a = _free_qadr(m, bid)
+    mat = np.empty(9)
+    mujoco.mju_quat2Mat(mat, m.qpos0[a + 3 : a + 7])
+    return _pose(m.qpos0[a : a + 3], mat)
+
+
+def _with_object_pose(simulator: LiftSimulator, target_body: str, T_world_object: np.ndarray) -> LiftSimulator:
+    """A simulator of the same scene whose initial configuration has ``target_body`` at ``T_world_object``."""
+    m = simulator.model
+    bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, target_body)
+    a = _free_qadr(m, bid)
+    qpos = m.qpos0.copy()
+    qpos[a : a + 3] = T_world_object[:3, 3]
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T_world_object[:3, :3]).reshape(-1))
+    qpos[a + 3 : a + 7] = quat
+    # The simulator's model already carries the protocol's physics and grip force; applying them again is a no-op.
+    return LiftSimulator(m, simulator.params, qpos=qpos, prefix=simulator.prefix)
+
+
+class _TargetPoses:
+    """Rollout observer that keeps the target's pose at placement and at the last check of the closing phase. The
+    latter is the state the rollout's contacts are read from (no step happens between that check and the contact
+    read-out), so contacts and pose come from the same ``mj_step`` (its collision detection and its ``xpos``/``xmat``).
+    """
+
+    def __init__(self, data: mujoco.MjData, body: int) -> None:
+        self.data, self.body = data, body
+        self.placed: np.ndarray | None = None
+        self.closed: np.ndarray | None = None
+
+    def __call__(self, phase: str, steps: int) -> None:
+        if phase == "closing":
+            self.closed = _pose(self.data.xpos[self.body], self.data.xmat[self.body])
+        elif phase == "placement":
+            self.placed = _pose(self.data.xpos[self.body], self.data.xmat[self.body])
+
+
+def rollout_with_object_pose(
+    simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float, target_body: str
+) -> tuple[RolloutResult, np.ndarray, np.ndarray | None]:
+    """Roll out one grasp and also return the target's poses (4, 4), mesh frame to world: at placement (before any
+    step), and when the contacts were recorded (the end of closing; None when the rollout ended before closing)."""
+    bid = mujoco.mj_name2id(simulator.model, mujoco.mjtObj.mjOBJ_BODY, target_body)
+    observer = _TargetPoses(simulator.data, bid)
+    result = simulator.rollout(T_tcp_world, width, target_body, observer=observer)
+    assert observer.placed is not None  # the protocol reports the placement before anything can stop it
+    return result, observer.placed, observer.closed
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class GraspRobustness:
+    """The robustness labels of one grasp (see the module docstring)."""
+
+    n: int
+    successes: int
+    robustness: float
+    """successes / n."""
+    interval: tuple[float, float]
+    """Wilson score 95% interval."""
+    pfc: float
+    """Fraction of copies with epsilon > delta."""
+    outcomes: np.ndarray
+    """(n,) int8 outcome codes of the copies."""
+    epsilons: np.ndarray
+    """(n,) float64 epsilon of the copies."""
+    sources: tuple[str, ...]
+    """Where each copy's contacts came from (``rollout``, ``raycast``, ``none``)."""
+    radius: np.ndarray
+    """(6,) float64 robustness radius along/about the TCP axes (:data:`RADIUS_AXES`); NaN when not computed."""
+
+
+def grasp_robustness(
+    simulator: LiftSimulator,
+    T_tcp_world: np.ndarray,
+    width: float,
+    target_body: str,
+    geometry: ObjectGeometry,
+    friction: float,
+    draws: np.ndarray,
+    params: RobustnessParams,
+    epsilon: EpsilonParams,
+    gripper: GripperSpec,
+) -> GraspRobustness:
+    """Roll out the perturbed copies of one grasp and label it.
+
+    Parameters
+    ----------
+    simulator : LiftSimulator
+        The compiled scene with the gripper (its initial configuration = the scene at rest).
+    T_tcp_world : (4, 4) float
+        The nominal grasp (TCP to world).
+    width : float
+        Nominal pad separation, m.
+    target_body : str
+        The target's body name, ``obj/<i>_<name>``.
+    geometry : ObjectGeometry
+        The target's mesh, centre of mass and torque scale (epsilon of the copies).
+    friction : float
+        Coulomb coefficient of the epsilon's friction cones.
+    draws : (n, 9) float
+        Standard normals per copy (:data:`DRAWS_PER_COPY`): TCP translation, TCP rotation vector, object x, y, yaw
+        (the last three used only with ``params.object_noise``). ``n`` copies are rolled out.
+    params : RobustnessParams
+    epsilon : EpsilonParams
+    gripper : GripperSpec
+        The gripper (its pads for the ray-cast contacts).
+
+    Returns
+    -------
+    GraspRobustness
+    """
+    draws = np.asarray(draws, dtype=np.float64)
+    if draws.ndim != 2 or draws.shape[1] != DRAWS_PER_COPY or len(draws) == 0:
+        raise ValueError(f"draws: expected shape (n >= 1, {DRAWS_PER_COPY}), got {draws.shape}")
+    poses = perturbed_poses(T_tcp_world, params.translation_sigma * draws[:, 0:3],
+                            params.rotation_sigma * draws[:, 3:6])
+    T_obj0 = initial_object_pose(simulator, target_body) if params.object_noise else None
+    n = len(draws)
+    outcomes = np.zeros(n, dtype=np.int8)
+    results: list[tuple[RolloutResult, np.ndarray | None, np.ndarray]] = []
+    for j in range(n):
+        sim = simulator
+        if params.object_noise:
+            dx, dy, yaw = draws[j, 6:9] * (params.object_translation_sigma, params.object_translation_sigma,
+                                           params.object_rotation_sigma)
+            sim = _with_object_pose(simulator, target_body,
+                                    planar_object_noise(T_obj0, geometry.center_of_mass, dx, dy, yaw))
+        result, T_placed, T_closed = rollout_with_object_pose(sim, poses[j], width, target_body)
+        outcomes[j] = result.code
+        results.append((result, T_closed, T_placed))
+    # Ray casts only where the copy's own contacts do not touch both pads, at the copy's pose relative to the object
+    # as placed; batched: one call per grasp.
+    need = [j for j, (r, _, _) in enumerate(results) if not np.isin((0, 1), r.contact_fingers).all()]
+    rays = {}
+    if need:
+        rel = np.stack([np.linalg.inv(results[j][2]) @ poses[j] for j in need])
+        found = closing_contacts(geometry.mesh, rel, gripper, rays_per_side=epsilon.rays_per_side,
+                                 tolerance=epsilon.ray_tolerance)
+        rays = dict(zip(need, found))
+    epsilons = np.zeros(n)
+    sources = []
+    for j, (r, T_closed, _) in enumerate(results):
+        rollout = (r.contact_points, r.contact_normals, r.contact_fingers)
+        source, p, nrm, f = contact_set(rollout, T_closed if T_closed is not None else np.eye(4), rays.get(j))
+        sources.append(source)
+        if source != "none":
+            epsilons[j] = epsilon.epsilon(p, nrm, f, geometry, friction)
+    successes = int((outcomes == Outcome.SUCCESS).sum())
+    radius = np.full(len(RADIUS_AXES), np.nan)
+    if params.radius:
+        radius = robustness_radius(simulator, T_tcp_world, width, target_body, params)
+    return GraspRobustness(
+        n=n, successes=successes, robustness=successes / n, interval=wilson_interval(successes, n),
+        pfc=float(np.mean(epsilons > params.epsilon_delta)), outcomes=outcomes, epsilons=epsilons,
+        sources=tuple(sources), radius=radius,
+    )
+
+
+def robustness_radius(
+    simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float, target_body: str, params: RobustnessParams
+) -> np.ndarray:
+    """Robustness radius of a successful grasp along/about each TCP axis (:data:`RADIUS_AXES`), by bisection.
+
+    For each axis and direction: a copy offset by the maximum (``radius_max_translation`` m or
+    ``radius_max_rotation`` rad) is rolled out; if it succeeds the direction's radius is the maximum, else
+    ``radius_iterations`` halvings of ``[0, maximum]`` (0 is the nominal grasp, assumed successful). The axis's
+    radius is the smaller of its two directions. ``(6,)`` float: m for the translations, rad for the rotations.
+    """
+    out = np.zeros(len(RADIUS_AXES))
+    for axis in range(len(RADIUS_AXES)):
+        top = params.radius_max_translation if axis < 3 else params.radius_max_rotation
+        edges = []
+        for sign in (1.0, -1.0):
+            if _offset_succeeds(simulator, T_tcp_world, width, target_body, axis, sign * top):
+                edges.append(top)
+                continue
+            lo, hi = 0.0, top
+            for _ in range(params.radius_iterations):
+                mid = 0.5 * (lo + hi)
+                ok = _offset_succeeds(simulator, T_tcp_world, width, target_body, axis, sign * mid)
+                lo, hi = (mid, hi) if ok else (lo, mid)
+            edges.append(lo)
+        out[axis] = min(edges)
+    return out
+
+
+def _offset_succeeds(simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float, target_body: str, axis: int,
+                     amount: float) -> bool:
+    """Whether the grasp offset by ``amount`` along/about TCP axis ``axis`` (0-2 m, 3-5 rad) succeeds."""
+    offset = np.zeros(6)
+    offset[axis] = amount
+    (T,) = perturbed_poses(T_tcp_world, offset[None, :3], offset[None, 3:])
+    return simulator.rollout(T, width, target_body).code == Outcome.SUCCESS
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The stage
+# ---------------------------------------------------------------------------------------------------------------
+
+SCHEMA = pa.schema(
+    [
+        ("scene_id", pa.string()),
+        ("grasp_id", pa.int32()),
+        ("n", pa.int32()),
+        ("successes", pa.int32()),
+        ("robustness", pa.float64()),
+        ("robustness_lo", pa.float64()),
+        ("robustness_hi", pa.float64()),
+        ("pfc", pa.float64()),
+        ("copy_outcomes", pa.list_(pa.int8())),
+        ("copy_epsilon", pa.list_(pa.float64())),
+        *[(f"radius_{a}", pa.float64()) for a in RADIUS_AXES],
+    ]
+)
+"""The robustness table's schema (see the module docstring)."""
+
+
+def _list_column(parts: list[np.ndarray], arrow_type: pa.DataType, dtype: Any) -> pa.ListArray:
+    offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int32)
+    values = np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+    return pa.ListArray.from_arrays(pa.array(offsets), pa.array(values, type=arrow_type))
+
+
+def scene_robustness(
+    grasps: pa.Table,
+    rollouts: pa.Table,
+    simulator: LiftSimulator,
+    object_names: list[str],
+    friction: np.ndarray,
+    records: dict[str, ObjectRecord],
+    params: RobustnessTaskParams,
+    rng: np.random.Generator,
+) -> tuple[pa.Table, dict[str, Any]]:
+    """The robustness table of one scene (module docstring) and metadata (copies rolled out, their outcomes).
+
+    Parameters
+    ----------
+    grasps, rollouts : pyarrow.Table
+        The scene's grasps and rollouts tables (one rollouts row per grasp, same order).
+    simulator : LiftSimulator
+        The scene compiled with the gripper (:func:`graspgen.sim.rollouts.scene_simulator`).
+    object_names : list of str
+        Object names by scene index; ``friction (n_objects,)`` their friction in the scene.
+    records : dict
+        Object records by name.
+    params : RobustnessTaskParams
+    rng : numpy.random.Generator
+        The task's generator: every draw is made up front, ``(grasps, num_perturbations, 9)``.
+    """
+    check_joined(grasps, rollouts, "rollouts")
+    p, ep = params.robustness, params.epsilon
+    n_grasps, n_copies = len(grasps), p.num_perturbations
+    draws = rng.standard_normal((n_grasps, n_copies, DRAWS_PER_COPY))
+    outcome = rollouts.column("outcome").to_numpy()
+    poses = column_array(grasps, "pose_world", (4, 4))
+    widths = grasps.column("width").to_numpy()
+    index = grasps.column("object_index").to_numpy()
+    gripper = get_gripper(grasps.column("gripper")[0].as_py()) if n_grasps else None
+    geometries: dict[str, ObjectGeometry] = {}
+    nan = math.nan
+    rows: list[GraspRobustness | None] = []
+    for i in range(n_grasps):
+        if outcome[i] != Outcome.SUCCESS:
+            rows.append(None)
+            continue
+        k = int(index[i])
+        name = object_names[k]
+        if name not in geometries:
+            geometries[name] = object_geometry(records[name])
+        mu = float(friction[k]) if ep.friction is None else ep.friction
+        rows.append(grasp_robustness(simulator, poses[i], float(widths[i]), object_body_name(k, name),
+                                     geometries[name], mu, draws[i], p, ep, gripper))
+
+    def num(get) -> pa.Array:
+        return pa.array([get(r) if r is not None else nan for r in rows], pa.float64())
+
+    arrays = {
+        "scene_id": grasps.column("scene_id"),
+        "grasp_id": grasps.column("grasp_id"),
+        "n": pa.array([r.n if r is not None else 0 for r in rows], pa.int32()),
+        "successes": pa.array([r.successes if r is not None else 0 for r in rows], pa.int32()),
+        "robustness": num(lambda r: r.robustness),
+        "robustness_lo": num(lambda r: r.interval[0]),
+        "robustness_hi": num(lambda r: r.interval[1]),
+        "pfc": num(lambda r: r.pfc),
+        "copy_outcomes": _list_column([r.outcomes if r is not None else np.zeros(0, np.int8) for r in rows],
+                                      pa.int8(), np.int8),
+        "copy_epsilon": _list_column([r.epsilons if r is not None else np.zeros(0) for r in rows],
+                                     pa.float64(), np.float64),
+    }
+    for a, axis in enumerate(RADIUS_AXES):
+        arrays[f"radius_{axis}"] = num(lambda r, a=a: r.radius[a])
+    table = pa.table(arrays, schema=SCHEMA)
+    done = [r for r in rows if r is not None]
+    copy_outcomes = np.concatenate([r.outcomes for r in done]) if done else np.zeros(0, np.int8)
+    sources = [s for r in done for s in r.sources]
+    meta = {
+        "grasps": n_grasps,
+        "evaluated": len(done),
+        "copies": int(len(copy_outcomes)),
+        "copy_successes": int((copy_outcomes == Outcome.SUCCESS).sum()),
+        "copy_contacts": {s: sources.count(s) for s in CONTACT_SOURCES},
+    }
+    return table, meta
+
+
