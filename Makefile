@@ -35,8 +35,9 @@ bench: $(STAMP) ## Run the throughput benchmarks (writes bench/results*.json)
 repro: $(STAMP) ## Check byte-reproducibility: jobs 1 vs 2, and kill -9 then resume
 	$(BIN)/python -m pipeline.repro --config configs/smoke.yaml --workdir build/repro -- $(BIN)/gen
 
-lint: $(STAMP) ## ruff
-	$(BIN)/ruff check pipeline stages tests bench assets
+lint: $(STAMP) ## ruff, and the layer contracts (import-linter, see ARCHITECTURE.md)
+	$(BIN)/ruff check pipeline graspgen stages graspgen_cli tests bench assets
+	$(BIN)/lint-imports --no-cache
 
 clean: ## Remove OUT and build products (keeps .venv and the CoACD cache in .cache)
 	rm -rf $(OUT) build

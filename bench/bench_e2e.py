@@ -1,4 +1,4 @@
-"""End to end: the whole default config, cold and warm, one and two workers (DESIGN section 9).
+"""End to end: the whole default config, cold and warm, one and two workers (ARCHITECTURE.md, Performance bars).
 
 Runs, each in a fresh Python process (``--child`` mode of this script, which calls
 :func:`pipeline.scheduler.run_pipeline`) into its own output folder under ``build/bench_e2e``:
@@ -7,8 +7,8 @@ Runs, each in a fresh Python process (``--child`` mode of this script, which cal
 2. ``warm``: the same command again: every task is skipped (what a second ``make dataset`` costs);
 3. ``jobs1`` and ``jobs2``: a fresh output folder with the CoACD cache of run 1, ``--jobs 1`` and ``--jobs 2``:
    the compute of the pipeline without the decomposition; their wall-time ratio is the scaling of 2 workers
-   (DESIGN 9: at least 1.8x). ``--rounds R`` (default 2) repeats this pair R times, interleaved, and keeps each
-   one's best (the machine is shared; the minimum is the least disturbed);
+   (ARCHITECTURE.md, Performance bars: at least 1.8x). ``--rounds R`` (default 2) repeats this pair R times,
+   interleaved, and keeps each one's best (the machine is shared; the minimum is the least disturbed);
 4. ``dask`` (unless ``--no-dask``): like ``jobs2`` on a dask.distributed LocalCluster of 2 worker processes.
 
 Reported: per-stage seconds (each stage's wall time in the run, publish included for ``dataset``), grasps labelled
@@ -59,14 +59,15 @@ def child(args: argparse.Namespace) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import pyarrow.parquet as pq
 
-    from graspgen_cli.app import PROJECT
     from pipeline.config import load_config
     from pipeline.keys import sha256_file
     from pipeline.scheduler import run_pipeline
+    from stages.project import PROJECT
 
     sets = [f"run.out={args.out}", f"run.cache_dir={args.cache}", f"run.jobs={args.jobs}",
             f"run.backend={args.backend}"]
     from pipeline.stage import stage_waves, topological_order
+    from pipeline.store import stage_dir
 
     cfg = load_config(PROJECT.schema, args.config, sets)
     start, start_time = time.perf_counter(), time.time()
@@ -79,7 +80,7 @@ def child(args: argparse.Namespace) -> None:
         "waves": [[st.name for st in wave] for wave in stage_waves(topological_order(PROJECT.stages))],
         "stages": [
             {"stage": r.stage, "tasks": r.total, "ran": r.ran, "skipped": r.skipped, "failed": r.failed,
-             "seconds": r.seconds, "task_seconds": _task_seconds(Path(args.out) / r.stage, start_time)}
+             "seconds": r.seconds, "task_seconds": _task_seconds(stage_dir(args.out, r.stage), start_time)}
             for r in reports
         ],
         "grasps": len(t),
@@ -90,12 +91,12 @@ def child(args: argparse.Namespace) -> None:
     Path(args.result).write_text(json.dumps(result))
 
 
-def _task_seconds(stage_dir: Path, since: float) -> list[float]:
-    """Seconds of each task this run committed in ``stage_dir`` (manifest order = dispatch order, roughly: tasks
-    are dispatched in the stage's task order); none when it ran nothing."""
+def _task_seconds(folder: Path, since: float) -> list[float]:
+    """Seconds of each task this run committed in the stage folder ``folder`` (manifest order = dispatch order,
+    roughly: tasks are dispatched in the stage's task order); none when it ran nothing."""
     from pipeline.store import Manifest
 
-    manifest = Manifest(stage_dir)
+    manifest = Manifest(folder)
     if not manifest.path.exists() or manifest.path.stat().st_mtime < since:
         return []
     # The stage's tasks in their declared order (sorted ids here: objects by name, scenes by id).

@@ -15,7 +15,7 @@ For each bundled object (mug, box) this measures, in one process:
 
 The object is prepared like the objects stage does it (repair, units, CoACD parts from the ``.cache/coacd`` cache,
 most probable stable pose; first run: ~15 s for the mug's CoACD) and placed on a ground plane for the pre-filter.
-The bar (DESIGN section 9): at least 5,000 antipodal candidates per second per core.
+The bar (ARCHITECTURE.md, Performance bars): at least 5,000 antipodal candidates per second per core.
 
 Usage: ``python bench/bench_grasps.py [--repeats N] [--out bench/results_grasps.json]``
 """
@@ -42,8 +42,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal, uses_embree  # noqa: E402
-from graspgen.geometry.mesh_prep import StablePoseParams, prepare_object  # noqa: E402
-from graspgen.sim.grippers import DEFAULT_GRIPPER, get_gripper  # noqa: E402
+from graspgen.geometry.prepare import prepare_object  # noqa: E402
+from graspgen.geometry.stable_poses import StablePoseParams  # noqa: E402
+from graspgen.sim.grippers import DEFAULT_GRIPPER, load_gripper  # noqa: E402
 from graspgen.sim.prefilter import CollisionChecker, PrefilterParams  # noqa: E402
 from stages.objects import catalog  # noqa: E402
 
@@ -110,7 +111,7 @@ def _best(fn, repeats: int) -> float:
 
 
 def bench_object(name: str, repeats: int) -> dict:
-    gripper = get_gripper(DEFAULT_GRIPPER)
+    gripper = load_gripper(DEFAULT_GRIPPER)
     t0 = time.perf_counter()
     obj = _prepare(name)
     prep_s = time.perf_counter() - t0

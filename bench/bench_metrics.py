@@ -1,19 +1,19 @@
-"""Epsilon throughput (DESIGN section 9: >= 2,000 grasps per second per core) and the robustness stage's cost per
-grasp.
+"""Epsilon throughput (ARCHITECTURE.md, Performance bars: >= 2,000 grasps per second per core) and the robustness
+stage's cost per grasp.
 
-Scene: the bundled box (50 x 70 x 120 mm, 0.27 kg) prepared with :func:`graspgen.geometry.mesh_prep.prepare_object`, in its
-most probable stable pose (flat on its 70 x 120 mm face) on the scenes stage's table (:func:`graspgen.sim.scene_model.
-build_scene_spec`), with the Robotiq 2F-85 attached, compiled once into a :class:`graspgen.sim.lift.LiftSimulator` (default
-:class:`graspgen.sim.lift.LiftParams`), object friction 0.5. Grasps: top-down, closing across the 70 mm extent (turned by
-N(0, 5 deg) about the vertical), offset uniformly by up to 45 mm along the 120 mm axis and N(0, 2 mm) across it,
-TCP 10-30 mm below the top.
+Scene: the bundled box (50 x 70 x 120 mm, 0.27 kg) prepared with :func:`graspgen.geometry.prepare.prepare_object`, in
+its most probable stable pose (flat on its 70 x 120 mm face) on the scenes stage's table
+(:func:`graspgen.sim.scene_model.build_scene_spec`), with the Robotiq 2F-85 attached, compiled once into a
+:class:`graspgen.sim.lift.LiftSimulator` (default :class:`graspgen.sim.lift.LiftParams`), object friction 0.5. Grasps:
+top-down, closing across the 70 mm extent (turned by N(0, 5 deg) about the vertical), offset uniformly by up to 45 mm
+along the 120 mm axis and N(0, 2 mm) across it, TCP 10-30 mm below the top.
 
-1. **Epsilon**: the contact sets of those grasps, as the metrics stage sees them: each grasp's rollout contacts at
-   the end of closing (1-4 per pad, object frame) when both jaws touched, and its ray-cast closing contacts (3 x 3
-   rays per pad). Timed: :func:`graspgen.quality.epsilon.grasp_epsilon` per contact set, one process (one core), the ``pad``
+1. **Epsilon**: the contact sets of those grasps, as the metrics stage sees them: each grasp's rollout contacts at the
+   end of closing (1-4 per pad, object frame) when both jaws touched, and its ray-cast closing contacts (3 x 3 rays per
+   pad). Timed: :func:`graspgen.quality.epsilon.grasp_epsilon` per contact set, one process (one core), the ``pad``
    model (default) and the ``points`` model; best of ``--rounds`` passes. The ratio is to the bar (2,000/s).
-2. **Robustness**: for successful grasps, :func:`graspgen.quality.robustness.grasp_robustness` with N = 20, 50, 100 perturbed
-   copies (default sigmas: 5 mm, 5 deg): N rollouts, the epsilon of each copy (ray casts for copies without
+2. **Robustness**: for successful grasps, :func:`graspgen.quality.robustness.grasp_robustness` with N = 20, 50, 100
+   perturbed copies (default sigmas: 5 mm, 5 deg): N rollouts, the epsilon of each copy (ray casts for copies without
    two-jaw contacts). Reported: seconds per grasp, copies (rollouts) per second, the share of the time spent
    outside the rollouts (epsilon, ray casts, bookkeeping), and the copies' outcome histogram. The scene's compile
    (once per task) is reported apart.
@@ -38,18 +38,18 @@ import mujoco
 import numpy as np
 
 from graspgen.geometry.contacts import closing_contacts
-from graspgen.geometry.mesh_prep import prepare_object
+from graspgen.geometry.prepare import prepare_object
 from graspgen.io.objects import ObjectRecord
 from graspgen.quality.epsilon import EpsilonParams, contact_set, grasp_epsilon, object_geometry
 from graspgen.quality.robustness import DRAWS_PER_COPY, RobustnessParams, grasp_robustness, rollout_with_object_pose
-from graspgen.sim.grippers import DEFAULT_GRIPPER, attach_gripper, get_gripper
+from graspgen.sim.grippers import DEFAULT_GRIPPER, attach_gripper, load_gripper
 from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
 from graspgen.sim.scene_model import SupportParams, build_scene_spec, object_body_name, placed_object
 from stages.objects import ASSETS, catalog
 
 RESULTS = Path(__file__).resolve().parent / "results_metrics.json"
 FRICTION = 0.5
-BAR = 2000.0  # epsilon evaluations per second per core (DESIGN section 9)
+BAR = 2000.0  # epsilon evaluations per second per core (ARCHITECTURE.md, Performance bars)
 
 
 def bundled_box() -> ObjectRecord:
@@ -69,7 +69,7 @@ def box_scene(record: ObjectRecord) -> tuple[LiftSimulator, str, np.ndarray, flo
     pose = np.asarray(record.stable_poses[0])
     t = time.perf_counter()
     spec = build_scene_spec([placed_object(record, pose, FRICTION, visual=False)], SupportParams())
-    attach_gripper(spec, get_gripper(DEFAULT_GRIPPER))
+    attach_gripper(spec, load_gripper(DEFAULT_GRIPPER))
     sim = LiftSimulator(spec.compile(), LiftParams())
     return sim, object_body_name(0, record.name), pose, time.perf_counter() - t
 
@@ -99,7 +99,7 @@ def contact_sets(sim, body, pose, geometry, grasps) -> tuple[list, list, list]:
     """Rollout contact sets (object frame, two jaws), ray-cast contact sets, and the successful grasps."""
     rollout_sets, ray_sets, successes = [], [], []
     rel = np.stack([np.linalg.inv(pose) @ T for T, _ in grasps])
-    rays = closing_contacts(geometry.mesh, rel, get_gripper(DEFAULT_GRIPPER))
+    rays = closing_contacts(geometry.mesh, rel, load_gripper(DEFAULT_GRIPPER))
     for (T, w), c in zip(grasps, rays):
         result, _, T_closed = rollout_with_object_pose(sim, T, w, body)
         if result.success:
@@ -142,7 +142,7 @@ def time_robustness(sim, body, geometry, grasps, n_copies: int, seed: int) -> di
     """Seconds per grasp of grasp_robustness with ``n_copies`` copies, and the time inside the rollouts."""
     params = RobustnessParams(num_perturbations=n_copies)
     rng = np.random.default_rng(seed)
-    gripper = get_gripper(DEFAULT_GRIPPER)
+    gripper = load_gripper(DEFAULT_GRIPPER)
     inside = [0.0]
     rollout = sim.rollout
 

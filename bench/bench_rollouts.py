@@ -1,9 +1,10 @@
-"""Grasp-and-lift rollout throughput (DESIGN section 9: >= 20 rollouts/s per core, report the ratio to the floor).
+"""Grasp-and-lift rollout throughput (ARCHITECTURE.md, Performance bars: >= 20 rollouts/s per core, report the ratio to
+the floor).
 
-For each bundled object (box, can): prepare it with :func:`graspgen.geometry.mesh_prep.prepare_object`, rest it in its most
-probable stable pose on a table (``support/table``), settle it, attach the default gripper (Robotiq 2F-85), and roll
-out random top-down grasps across it with :class:`graspgen.sim.lift.LiftSimulator` (default :class:`LiftParams`, once
-without and once with the shake). Reported per object:
+For each bundled object (box, can): prepare it with :func:`graspgen.geometry.prepare.prepare_object`, rest it in its
+most probable stable pose on a table (``support/table``), settle it, attach the default gripper (Robotiq 2F-85), and
+roll out random top-down grasps across it with :class:`graspgen.sim.lift.LiftSimulator` (default :class:`LiftParams`,
+once without and once with the shake). Reported per object:
 
 * rollouts/s in one process on one core (MuJoCo is single-threaded), and ms per rollout;
 * simulated steps per rollout (mean) and the outcome histogram;
@@ -46,7 +47,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from graspgen.geometry.mesh_prep import CoacdParams, PreparedObject, prepare_object
+from graspgen.geometry.convex import CoacdParams
+from graspgen.geometry.prepare import PreparedObject, prepare_object
 from graspgen.sim import grippers as G
 from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
 
@@ -93,7 +95,7 @@ def build_scene(obj: PreparedObject) -> tuple[mujoco.MjModel, np.ndarray, np.nda
                       userface=np.asarray(faces).ravel().tolist())
         body.add_geom(name=f"obj/0_{obj.name}/part_{i}", type=mujoco.mjtGeom.mjGEOM_MESH,
                       meshname=f"{obj.name}_part_{i}", friction=[FRICTION, 0.005, 0.0001])
-    G.attach_gripper(spec, G.get_gripper(G.DEFAULT_GRIPPER))
+    G.attach_gripper(spec, G.load_gripper(G.DEFAULT_GRIPPER))
     model = spec.compile()
     # Settle (what the scenes stage does): park the gripper far away, let the object come to rest, keep the qpos.
     data = mujoco.MjData(model)
@@ -134,9 +136,9 @@ def sample_grasps(verts: np.ndarray, n: int, rng: np.random.Generator) -> list[t
 
 class _StepTimer:
     """Context manager: while active, ``mujoco.mj_step`` is wrapped so that the time spent inside it (and the steps
-    taken) are summed. :mod:`graspgen.sim.lift` looks ``mujoco.mj_step`` up when it steps (never caches it across calls),
-    so the rollouts run their exact physics through the wrapper: the sum is the bare ``mj_step`` cost of exactly those
-    steps, Python -> C call included, everything else excluded."""
+    taken) are summed. :mod:`graspgen.sim.lift` looks ``mujoco.mj_step`` up when it steps (never caches it across
+    calls), so the rollouts run their exact physics through the wrapper: the sum is the bare ``mj_step`` cost of
+    exactly those steps, Python -> C call included, everything else excluded."""
 
     def __enter__(self) -> _StepTimer:
         self.seconds, self.steps = 0.0, 0

@@ -35,8 +35,8 @@ from graspgen.io.objects import read_object
 from graspgen.sim.lift import OUTCOME_NAMES, LiftParams
 from graspgen.sim.rollouts import scene_simulator
 from graspgen.sim.scene_model import object_body_name
-from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
+from stages.project import PROJECT
 
 RESULTS = Path(__file__).resolve().parent / "results_label_stability.json"
 BAR = 0.05

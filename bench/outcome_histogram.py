@@ -22,10 +22,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from graspgen.sim.lift import OUTCOME_NAMES
-from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.scheduler import Project, committed, plan, upstream_view
 from pipeline.stage import topological_order
+from pipeline.store import stage_dir
+from stages.project import PROJECT
 
 RESULTS = Path(__file__).resolve().parent / "results_outcome_histogram.json"
 SHORT = ("ground", "target", "clutter", "no_contact", "slipped", "success")
@@ -42,7 +43,8 @@ def current_shards(project: Project, config: Any, stage: str) -> dict[str, dict[
         planned = plan(s, s.params(config), upstream_view(out, s, keys, verify_hash=False))
         keys[s.name] = {p.key for p in planned}
         entries = committed(out, s.name, verify_hash=False)
-        shards[s.name] = {p.task.id: out / s.name / str(entries[p.key].file) for p in planned if p.key in entries}
+        folder = stage_dir(out, s.name)
+        shards[s.name] = {p.task.id: folder / str(entries[p.key].file) for p in planned if p.key in entries}
     return shards
 
 

@@ -15,11 +15,11 @@ Two protocols:
   most probable stable pose, settled in MuJoCo, with gravity throughout; the grasps are moved with it
   (``T_world = T_world_object @ T_object``). Grasps from below the table top are collisions with the ground (0).
 
-The object is prepared with :func:`graspgen.geometry.mesh_prep.prepare_object` (repair, units, mass from density, CoACD with
-cheap settings unless configured, cached by mesh hash). Gripper opening: the given widths (the jaws open to
+The object is prepared with :func:`graspgen.geometry.prepare.prepare_object` (repair, units, mass from density, CoACD
+with cheap settings unless configured, cached by mesh hash). Gripper opening: the given widths (the jaws open to
 ``width + width_margin``), or, without widths, the width found by closing the pads onto the mesh with ray casts
-(:func:`graspgen.geometry.contacts.closing_contacts`); a grasp whose pads touch nothing that way opens fully (it will most
-likely close on air: 3).
+(:func:`graspgen.geometry.contacts.closing_contacts`); a grasp whose pads touch nothing that way opens fully (it will
+most likely close on air: 3).
 
 Parallelism: the grasps are cut into ``jobs`` contiguous chunks run by joblib workers; each worker builds and
 compiles its own model once (a compiled model is never pickled) and rolls its chunk out in order, so the output is
@@ -57,7 +57,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 from pathlib import Path
 from typing import Any
@@ -70,9 +69,11 @@ import trimesh
 
 from graspgen.errors import InputError
 from graspgen.geometry.contacts import closing_contacts
-from graspgen.geometry.mesh_prep import CoacdParams, StablePoseParams, prepare_object
-from graspgen.io.arrow import fixed_list
-from graspgen.sim.grippers import attach_gripper, get_gripper
+from graspgen.geometry.convex import CoacdParams
+from graspgen.geometry.prepare import prepare_object
+from graspgen.geometry.stable_poses import StablePoseParams
+from graspgen.io.arrow import fixed_list, variable_list
+from graspgen.sim.grippers import attach_gripper, load_gripper
 from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, RolloutResult
 from graspgen.sim.scene_model import (
     GROUND_NAME,
@@ -85,6 +86,7 @@ from graspgen.sim.scene_model import (
     object_poses,
     settle,
 )
+from graspgen.validation import check_instance, check_number, check_positive_int, check_transforms
 
 __all__ = [
     "CHEAP_COACD",
@@ -154,38 +156,17 @@ class EvaluateParams:
     """Largest accepted object extent after scaling, m (ACRONYM has furniture-sized objects up to ~1 m)."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.lift, LiftParams):
-            raise ValueError(f"lift: expected LiftParams, got {type(self.lift).__name__}")
+        check_instance("lift", self.lift, LiftParams)
         for key in ("friction", "density", "max_extent"):
-            value = getattr(self, key)
-            number = isinstance(value, (int, float)) and not isinstance(value, bool)
-            if not (number and value > 0 and math.isfinite(value)):
-                raise ValueError(f"{key}: must be a finite number > 0, got {value!r}")
-        if self.mass is not None and not (self.mass > 0 and math.isfinite(self.mass)):
-            raise ValueError(f"mass: must be > 0 kg or None, got {self.mass!r}")
-        if isinstance(self.rays_per_side, bool) or not isinstance(self.rays_per_side, int) or self.rays_per_side < 1:
-            raise ValueError(f"rays_per_side: must be an integer >= 1, got {self.rays_per_side!r}")
+            check_number(key, getattr(self, key), low=0.0, low_open=True)
+        if self.mass is not None:
+            check_number("mass", self.mass, low=0.0, low_open=True)
+        check_positive_int("rays_per_side", self.rays_per_side)
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # Input
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def _check_poses(T_tcp: Any) -> np.ndarray:
-    T = np.asarray(T_tcp, dtype=np.float64)
-    if T.ndim != 3 or T.shape[1:] != (4, 4):
-        raise ValueError(f"T_tcp: expected (n, 4, 4) poses, got shape {np.shape(T_tcp)}")
-    if not np.isfinite(T).all():
-        bad = int(np.flatnonzero(~np.isfinite(T).reshape(len(T), -1).all(axis=1))[0])
-        raise ValueError(f"T_tcp[{bad}]: not finite")
-    R = T[:, :3, :3]
-    err = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
-    bad_rot = np.flatnonzero((err > 1e-5) | (np.linalg.det(R) <= 0))
-    if len(bad_rot):
-        raise ValueError(f"T_tcp[{int(bad_rot[0])}]: the rotation block is not a proper rotation "
-                         f"({len(bad_rot)} of {len(T)} poses)")
-    return T
 
 
 def read_pose_table(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
@@ -263,7 +244,7 @@ def _settled_pose(obj: PlacedObject, support: SupportParams, lift: LiftParams) -
 def _roll_out_chunk(world: _World, T_world: np.ndarray, widths: np.ndarray) -> list[RolloutResult]:
     """Roll out a chunk of grasps (world-frame TCP poses) in one freshly compiled model (one per worker)."""
     spec = _spec(world.obj, world.support, world.lift)
-    attach_gripper(spec, get_gripper(world.gripper))
+    attach_gripper(spec, load_gripper(world.gripper))
     simulator = LiftSimulator(spec.compile(), world.lift)
     body = object_body_name(0, world.obj.name)
     return [simulator.rollout(T, float(w), body) for T, w in zip(T_world, widths)]
@@ -329,8 +310,8 @@ def evaluate_grasps(
     params = EvaluateParams() if params is None else params
     if not isinstance(params, EvaluateParams):
         raise ValueError(f"params: expected EvaluateParams, got {type(params).__name__}")
-    spec = get_gripper(gripper)
-    T = _check_poses(T_tcp)
+    spec = load_gripper(gripper)
+    T = check_transforms("T_tcp", T_tcp)
     n = len(T)
     if widths is not None:
         widths = np.asarray(widths, dtype=np.float64).reshape(-1)
@@ -395,11 +376,6 @@ def _table(T: np.ndarray, width: np.ndarray, source: list[str], results: list[Ro
     def num(attr: str) -> pa.Array:
         return pa.array(np.array([getattr(r, attr) for r in results], dtype=np.float64))
 
-    def listed(parts: list[np.ndarray], arrow_type: pa.DataType) -> pa.Array:
-        offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int32)
-        values = np.concatenate(parts) if parts else np.zeros(0)
-        return pa.ListArray.from_arrays(pa.array(offsets), pa.array(values, type=arrow_type))
-
     points = [(r.contact_points @ R.T + t).reshape(-1) for r in results]
     normals = [(r.contact_normals @ R.T).reshape(-1) for r in results]
     n = len(results)
@@ -417,10 +393,10 @@ def _table(T: np.ndarray, width: np.ndarray, source: list[str], results: list[Ro
         "rel_translation": num("rel_translation"),
         "rel_rotation": num("rel_rotation"),
         "pose": fixed_list(T.reshape(n, 16), 16),
-        "contact_points": listed(points, pa.float64()),
-        "contact_normals": listed(normals, pa.float64()),
-        "contact_forces": listed([np.asarray(r.contact_forces, dtype=np.float64) for r in results], pa.float64()),
-        "contact_fingers": listed([np.asarray(r.contact_fingers, dtype=np.int8) for r in results], pa.int8()),
+        "contact_points": variable_list(points, pa.float64()),
+        "contact_normals": variable_list(normals, pa.float64()),
+        "contact_forces": variable_list([r.contact_forces for r in results], pa.float64()),
+        "contact_fingers": variable_list([r.contact_fingers for r in results], pa.int8()),
     }
     return pa.table(arrays, schema=SCHEMA)
 

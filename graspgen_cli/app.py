@@ -18,7 +18,7 @@ from pipeline.cli import ConfigOpt, SetOpt, build_app, fail, load  # noqa: E402
 from pipeline.errors import StageError  # noqa: E402
 from pipeline.scheduler import Project, committed, plan, upstream_view  # noqa: E402
 from pipeline.stage import topological_order  # noqa: E402
-from pipeline.store import Manifest  # noqa: E402
+from pipeline.store import Manifest, stage_dir  # noqa: E402
 from stages.project import PROJECT, USER_ERRORS  # noqa: E402
 
 app = build_app(PROJECT)
@@ -50,14 +50,15 @@ def find_shard(project: Project, config: Any, stage: str, task_id: str) -> tuple
             want = next((p.key for p in planned if p.task.id == task_id), None)
     entries = committed(out, stage, verify_hash=False)
     if want is not None and want in entries:
-        return out / stage / str(entries[want].file), True
-    older = [e for e in Manifest(out / stage).entries().values() if e.task == task_id and e.key in entries]
+        return stage_dir(out, stage) / str(entries[want].file), True
+    older = [e for e in Manifest(stage_dir(out, stage)).entries().values() if e.task == task_id and e.key in entries]
     if older:
-        return out / stage / str(older[-1].file), False
+        return stage_dir(out, stage) / str(older[-1].file), False
     known = sorted({e.task for e in entries.values()})
     hint = f"; it has: {', '.join(known[:5])}{' ...' if len(known) > 5 else ''}" if known else ""
     raise StageError(
-        f"no {stage} shard for {task_id!r} in {out / stage}{hint}. Run `gen run {stage}` with this config first"
+        f"no {stage} shard for {task_id!r} in {stage_dir(out, stage)}{hint}. "
+        f"Run `gen run {stage}` with this config first"
     )
 
 
@@ -247,12 +248,12 @@ def evaluate(
     )
     from graspgen.io.acronym import read_acronym
     from graspgen.io.files import write_parquet
-    from graspgen.sim.grippers import get_gripper
+    from graspgen.sim.grippers import load_gripper
 
     console = Console(stderr=True)
     try:
         cfg = load(PROJECT, config, set_)
-        get_gripper(gripper)  # ConfigError listing the grippers, before any work
+        load_gripper(gripper)  # ConfigError listing the grippers, before any work
         suffix = grasps.suffix.lower()
         if not grasps.is_file():
             raise InputError(f"{grasps}: grasp file not found")
@@ -317,7 +318,7 @@ def report_cmd(
     out: Annotated[Path, typer.Argument(help="The run folder (or its dataset/ folder) of a published dataset.")],
 ) -> None:
     """Render the dataset card (card.md, card.json) and its plots again from a published dataset."""
-    from stages.dataset import report
+    from graspgen.io.card import report
 
     console = Console(stderr=True)
     try:

@@ -19,7 +19,7 @@ from rich.table import Table
 from pipeline.config import load_config, to_yaml
 from pipeline.errors import GenError
 from pipeline.scheduler import BACKENDS, Project, StageReport, run_pipeline, status
-from pipeline.store import RunLock
+from pipeline.store import SHARDS, RunLock, run_config_path, stage_dir
 
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config file (defaults when omitted).")]
 OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output folder (overrides run.out).")]
@@ -29,8 +29,19 @@ SetOpt = Annotated[
 
 
 def load(project: Project, config: Path | None, sets: list[str] | None, **run_overrides: Any) -> Any:
-    """Load the config with ``--set`` overrides, then the CLI's own run options (which win)."""
+    """Load the config with ``--set`` overrides, then the CLI's own run options (which win).
+
+    Without ``--config``, the config the output folder remembers from its latest run (``OUT/shards/config.yaml``)
+    is used when there is one, so ``gen status`` after ``make dataset`` compares against what made the folder;
+    otherwise the defaults.
+    """
     overrides = list(sets or [])
+    if config is None:
+        out = run_overrides.get("out") or load_config(project.schema, None, overrides).run.out
+        remembered = run_config_path(out)
+        if remembered.is_file():
+            config = remembered
+            run_overrides = {**run_overrides, "out": out}
     for key, value in run_overrides.items():
         if value is not None:
             overrides.append(f"run.{key}={value}")
@@ -159,12 +170,13 @@ def build_app(project: Project) -> typer.Typer:
     @config_app.command("show")
     def config_show(
         config: ConfigOpt = None,
+        out: OutOpt = None,
         set_: SetOpt = None,
         comments: Annotated[bool, typer.Option(help="Print each key's description.")] = True,
     ) -> None:
-        """Print the resolved config (file + overrides + defaults) as YAML."""
+        """Print the resolved config (file + overrides + defaults, or the one OUT remembers) as YAML."""
         try:
-            cfg = load(project, config, set_)
+            cfg = load(project, config, set_, out=out)
         except user_errors as exc:
             fail(Console(stderr=True), str(exc))
         sys.stdout.write(to_yaml(cfg, comments=comments))
@@ -191,9 +203,16 @@ def build_app(project: Project) -> typer.Typer:
         except user_errors as exc:
             fail(console, str(exc))
         for name in names:
-            if (root / name).exists():
-                shutil.rmtree(root / name)
-                console.print(f"removed {root / name}")
+            published = [root / rel for rel in project.stage(name).published]
+            for path in [stage_dir(root, name), *published]:
+                if path.is_dir():
+                    shutil.rmtree(path)
+                    console.print(f"removed {path}")
+                elif path.exists():
+                    path.unlink()
+                    console.print(f"removed {path}")
+        if (root / SHARDS).is_dir() and not any((root / SHARDS).iterdir()):
+            (root / SHARDS).rmdir()
         lock.__exit__()
         if not stage and not any(p for p in root.iterdir() if p.name != ".lock"):
             shutil.rmtree(root)

@@ -8,7 +8,7 @@ range is a :class:`~pipeline.errors.ConfigError` whose message starts with the k
     objects.density: must be > 0, got -1
 
 Range checks live in each dataclass's ``__post_init__`` and raise ``ValueError("field: message")``; the loader
-prefixes the section path. The :func:`check` helper keeps those one-liners short.
+prefixes the section path.
 """
 
 from __future__ import annotations
@@ -26,31 +26,12 @@ from pipeline.errors import ConfigError
 
 __all__ = [
     "RunConfig",
-    "check",
     "field_docs",
     "load_config",
     "parse_override",
     "to_dict",
     "to_yaml",
 ]
-
-
-def check(name: str, ok: bool, must: str, value: Any) -> None:
-    """Raise ``ValueError("name: must ..., got value")`` unless ``ok``.
-
-    Parameters
-    ----------
-    name : str
-        The field name, as the user writes it in the config.
-    ok : bool
-        The condition that must hold.
-    must : str
-        What the value must be, e.g. ``"be > 0"``.
-    value : Any
-        The offending value, echoed in the message.
-    """
-    if not ok:
-        raise ValueError(f"{name}: must {must}, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,7 +50,8 @@ class RunConfig:
     """Folder for caches that survive ``gen clean`` (CoACD decompositions), relative to the current directory."""
 
     def __post_init__(self) -> None:
-        check("jobs", self.jobs >= 0, "be >= 0 (0 = all cores)", self.jobs)
+        if self.jobs < 0:
+            raise ValueError(f"jobs: must be >= 0 (0 = all cores), got {self.jobs!r}")
 
 
 # --------------------------------------------------------------------------------------------------------------

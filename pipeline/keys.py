@@ -1,9 +1,9 @@
 """Content keys: what a task's output is a function of, hashed.
 
-A key is ``sha256`` of the canonical JSON of everything that determines a shard's bytes (DESIGN 3): the key
-scheme version, the stage name and version, the stage's params, the task id and payload, the keys of the
-upstream shards it reads, and the sha256 of every raw input file. Same key -> same bytes; a changed param
-changes the key of that stage and of everything downstream, nothing else.
+A key is ``sha256`` of the canonical JSON of everything that determines a shard's bytes (ARCHITECTURE.md, The engine):
+the key scheme version, the stage name and version, the stage's params, the task id and payload, the keys of the
+upstream shards it reads, and the sha256 of every raw input file. Same key -> same bytes; a changed param changes the
+key of that stage and of everything downstream, nothing else.
 """
 
 from __future__ import annotations

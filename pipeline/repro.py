@@ -28,13 +28,13 @@ import sys
 import time
 from pathlib import Path
 
-from pipeline.store import MANIFEST
+from pipeline.store import MANIFEST, SHARDS
 
 
 def shard_hashes(out: Path) -> dict[str, str]:
     """``{"stage/task": sha256}`` of the successful entries in every manifest under ``out`` (latest per task)."""
     hashes: dict[str, str] = {}
-    for manifest in sorted(out.glob(f"*/{MANIFEST}")):
+    for manifest in sorted(out.glob(f"{SHARDS}/*/{MANIFEST}")):
         stage = manifest.parent.name
         for line in manifest.read_text().splitlines():
             try:
@@ -56,7 +56,7 @@ def _run(cmd: list[str], config: str, out: Path, cache: Path, jobs: int) -> None
 
 
 def _committed_lines(out: Path) -> int:
-    return sum(len(m.read_text().splitlines()) for m in out.glob(f"*/{MANIFEST}"))
+    return sum(len(m.read_text().splitlines()) for m in out.glob(f"{SHARDS}/*/{MANIFEST}"))
 
 
 def _run_and_kill(

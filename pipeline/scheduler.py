@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import os
 import sys
 import time
@@ -19,11 +20,21 @@ from typing import Any
 
 import joblib
 
-from pipeline.config import RunConfig
-from pipeline.errors import ConfigError, StageError
+from pipeline.config import RunConfig, to_yaml
+from pipeline.errors import ConfigError, GenError, StageError
 from pipeline.keys import key_parts, rng_for_key, sha256_file, task_key
 from pipeline.stage import RunContext, Stage, Task, Upstream, stage_waves, topological_order
-from pipeline.store import Entry, Manifest, RunLock, atomic_path, shard_path
+from pipeline.store import (
+    Entry,
+    Manifest,
+    RunLock,
+    atomic_path,
+    remove_stray_temps,
+    run_config_path,
+    shard_path,
+    stage_dir,
+    write_text_atomic,
+)
 
 BACKENDS = ("loky", "dask", "ray")
 
@@ -75,7 +86,7 @@ class StageReport:
 
 def committed(out: Path, stage: str, *, verify_hash: bool = True) -> dict[str, Entry]:
     """Successful, intact entries of a stage folder, by key."""
-    manifest = Manifest(out / stage)
+    manifest = Manifest(stage_dir(out, stage))
     return {k: e for k, e in manifest.entries().items() if manifest.shard_ok(e, verify_hash=verify_hash)}
 
 
@@ -130,6 +141,21 @@ def plan(stage: Stage, params: Any, upstream: Upstream) -> list[PlannedTask]:
 # Executing one task (in a worker)
 
 
+OUT_OF_SPACE = (errno.ENOSPC, errno.EDQUOT)
+"""Write errors that are the disk's, not the task's: the run stops, and a resume redoes the task."""
+ABORTED = "aborted"
+"""Status of an entry the scheduler never commits: the task could not write its shard (disk full)."""
+
+
+class DiskFullError(GenError):
+    """The output folder's disk is full (or over quota). Finished tasks are kept; free space and run again."""
+
+
+def out_of_space(exc: OSError) -> bool:
+    """Whether a write failed for lack of space. HDF5 and Arrow do not always set ``errno``: read the text too."""
+    return exc.errno in OUT_OF_SPACE or any(os.strerror(e) in str(exc) for e in OUT_OF_SPACE)
+
+
 def execute_task(
     stage: Stage, planned: PlannedTask, params: Any, upstream: Upstream, stage_dir: Path, ctx: RunContext
 ) -> Entry:
@@ -152,18 +178,29 @@ def execute_task(
             parts=planned.parts,
             meta=meta,
         )
+    except OSError as exc:
+        if not out_of_space(exc):
+            return _failed_entry(stage, planned, exc, start)
+        # Not the task's fault: nothing is recorded, so the task runs again once space is freed.
+        return Entry(key=key, task=task.id, status=ABORTED, error=f"{exc.strerror or exc} while writing {final}")
     except Exception as exc:  # noqa: BLE001 - any task error is recorded, and the run goes on
-        text = f"{type(exc).__name__}: {exc}"
-        if not _is_user_error(exc, stage):
-            text += "\n" + "".join(traceback.format_exception(exc)[-3:])
-        return Entry(
-            key=key,
-            task=task.id,
-            status="failed",
-            seconds=round(time.perf_counter() - start, 4),
-            parts=planned.parts,
-            error=text.strip(),
-        )
+        return _failed_entry(stage, planned, exc, start)
+
+
+def _failed_entry(stage: Stage, planned: PlannedTask, exc: BaseException, start: float) -> Entry:
+    """The manifest entry of a task that raised: the error in one line for a user error, with the end of the
+    traceback for anything else (a bug)."""
+    text = f"{type(exc).__name__}: {exc}"
+    if not _is_user_error(exc, stage):
+        text += "\n" + "".join(traceback.format_exception(exc)[-3:])
+    return Entry(
+        key=planned.key,
+        task=planned.task.id,
+        status="failed",
+        seconds=round(time.perf_counter() - start, 4),
+        parts=planned.parts,
+        error=text.strip(),
+    )
 
 
 def _is_user_error(exc: BaseException, stage: Stage) -> bool:
@@ -186,6 +223,10 @@ def resolve_jobs(jobs: int) -> int:
         return os.cpu_count() or 1
 
 
+DASK_CONNECT_TIMEOUT = 10
+"""Seconds to wait for ``run.dask_address`` to answer before giving up with a one-line error."""
+
+
 @contextlib.contextmanager
 def parallel_backend(run: RunConfig, jobs: int) -> Iterator[None]:
     """Set joblib's backend for the run: local processes (loky), a dask.distributed cluster, or ray."""
@@ -199,7 +240,14 @@ def parallel_backend(run: RunConfig, jobs: int) -> Iterator[None]:
         except ImportError:
             raise ConfigError("run.backend: 'dask' needs the dask[distributed] package installed") from None
         if run.dask_address:
-            client = Client(run.dask_address)
+            try:
+                client = Client(run.dask_address, timeout=DASK_CONNECT_TIMEOUT)
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(
+                    f"run.dask_address: cannot reach a dask scheduler at {run.dask_address} within "
+                    f"{DASK_CONNECT_TIMEOUT} s ({type(exc).__name__}: {exc}); start one (dask scheduler) or fix "
+                    "the address"
+                ) from None
             cluster = None
         else:
             cluster = LocalCluster(
@@ -268,6 +316,8 @@ def run_pipeline(
     reports: dict[str, StageReport] = {}
     current: dict[str, set[str]] = {}
     with RunLock(out), parallel_backend(run, jobs):
+        remove_stray_temps(out)
+        write_text_atomic(run_config_path(out), to_yaml(config, comments=False))
         for index, wave in enumerate(stage_waves(order)):
             for stage_run in _run_wave(wave, config, out, ctx, jobs, retry_failed, notify, current):
                 current[stage_run.stage.name] = stage_run.keys
@@ -312,7 +362,7 @@ def _start_stage(
     stage: Stage, params: Any, out: Path, retry_failed: bool, current: dict[str, set[str]]
 ) -> _StageRun:
     """Plan a stage and sort its tasks into committed (skipped), remembered failures and pending."""
-    manifest = Manifest(out / stage.name)
+    manifest = Manifest(stage_dir(out, stage.name))
     upstream = upstream_view(out, stage, current)
     planned = plan(stage, params, upstream)
     report = StageReport(stage.name, total=len(planned))
@@ -360,16 +410,28 @@ def _run_wave(
         owner = {p.key: r for r, p in work}
         for r in runs:
             if r.pending:
-                (out / r.stage.name).mkdir(parents=True, exist_ok=True)
+                stage_dir(out, r.stage.name).mkdir(parents=True, exist_ok=True)
         calls = [
             joblib.delayed(execute_task)(
-                r.stage, p, r.params, r.upstream.subset(p.task.needs), out / r.stage.name, ctx
+                r.stage, p, r.params, r.upstream.subset(p.task.needs), stage_dir(out, r.stage.name), ctx
             )
             for r, p in work
         ]
         for entry in _finished(calls, min(jobs, len(work))):
             r = owner[entry.key]
-            r.manifest.append(entry)
+            if entry.status == ABORTED:
+                raise DiskFullError(
+                    f"{r.stage.name}/{entry.task}: {entry.error}. Free some space and run the same command again: "
+                    "finished tasks are kept, this one and the rest will run then"
+                )
+            try:
+                r.manifest.append(entry)
+            except OSError as exc:
+                if not out_of_space(exc):
+                    raise
+                raise DiskFullError(
+                    f"{r.manifest.path}: {exc.strerror}; free some space and run the same command again"
+                ) from None
             if entry.status == "ok":
                 r.report.ran += 1
             else:
@@ -436,7 +498,7 @@ def status(project: Project, config: Any, targets: Sequence[str] | None = None) 
             result.append(StageStatus(stage.name, "waiting", reasons=[f"needs {', '.join(waiting)} first"]))
             not_done.add(stage.name)
             continue
-        manifest = Manifest(out / stage.name)
+        manifest = Manifest(stage_dir(out, stage.name))
         entries = manifest.entries()
         by_task: dict[str, Entry] = {}
         for e in entries.values():

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import StageError
-from pipeline.store import Entry
+from pipeline.store import Entry, stage_dir
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +80,7 @@ class Upstream:
         """Path of the shard of ``task_id`` in ``stage``."""
         entry = self.entry(stage, task_id)
         assert entry.file is not None
-        return self.out / stage / entry.file
+        return stage_dir(self.out, stage) / entry.file
 
     def key(self, stage: str, task_id: str) -> str:
         return self.entry(stage, task_id).key
@@ -122,6 +122,9 @@ class Stage(abc.ABC):
     """Bump by hand when the stage's semantics or output format change: its outputs become stale."""
     ext: str = "h5"
     """Shard file extension (``h5`` or ``parquet``)."""
+    published: tuple[str, ...] = ()
+    """Paths, relative to the output folder, that :meth:`publish` writes (``gen clean`` removes them with the
+    stage's shards)."""
     user_errors: tuple[type[BaseException], ...] = ()
     """Exception types (besides :class:`~pipeline.errors.GenError`) that mean bad input rather than a bug: a task
     failing with one is reported in one line, without a traceback."""

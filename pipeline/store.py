@@ -2,9 +2,13 @@
 
 Layout::
 
-    OUT/<stage>/<key[:2]>/<key>.<ext>     one shard per task
-    OUT/<stage>/manifest.jsonl            append-only log of finished tasks: the commit point
-    OUT/.lock                             held (flock) by the run writing OUT
+    OUT/shards/<stage>/<key[:2]>/<key>.<ext>     one shard per task
+    OUT/shards/<stage>/manifest.jsonl            append-only log of finished tasks: the commit point
+    OUT/shards/config.yaml                       the resolved config of the latest run (written at its start)
+    OUT/.lock                                    held (flock) by the run writing OUT
+
+The engine keeps to ``OUT/shards`` and ``OUT/.lock``; the rest of OUT belongs to what stages publish for people
+(:meth:`pipeline.stage.Stage.publish`), so a published folder holds only published files.
 
 A shard without a manifest entry does not exist: a run killed between writing a shard and appending its entry
 simply redoes that task (and writes the same bytes again). A manifest line cut short by a kill is ignored.
@@ -27,6 +31,22 @@ from pipeline.errors import LockError
 from pipeline.keys import sha256_file
 
 MANIFEST = "manifest.jsonl"
+SHARDS = "shards"
+"""The engine's folder in OUT: one sub-folder of shards and a manifest per stage."""
+
+
+RUN_CONFIG = "config.yaml"
+"""The resolved config of the latest run, kept in the engine's folder: commands without ``--config`` use it."""
+
+
+def run_config_path(out: str | os.PathLike) -> Path:
+    """Where a run folder remembers the config that made it: ``OUT/shards/config.yaml``."""
+    return Path(out) / SHARDS / RUN_CONFIG
+
+
+def stage_dir(out: str | os.PathLike, stage: str) -> Path:
+    """The engine's folder of ``stage`` in the output folder ``out``: ``OUT/shards/<stage>``."""
+    return Path(out) / SHARDS / stage
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,14 +83,27 @@ def shard_path(stage_dir: Path, key: str, ext: str) -> Path:
     return stage_dir / key[:2] / f"{key}.{ext}"
 
 
+TEMP_SUFFIX = ".tmp"
+"""Suffix of the temp files of :func:`atomic_path` (named ``.<final name>.<random>.tmp``)."""
+
+
+def file_mode() -> int:
+    """The mode a new file gets under the current umask (0644 under 022), as ``open()`` would give it."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 @contextlib.contextmanager
 def atomic_path(final: Path) -> Iterator[Path]:
     """Yield a temp path in ``final``'s folder; on success move it onto ``final`` with ``os.replace``.
 
-    The temp file is removed if the body raises, so a failed write never leaves a partial shard behind.
+    The temp file is removed if the body raises, so a failed write never leaves a partial shard behind. The file
+    gets the mode the umask gives (``mkstemp`` alone would make it 0600: unreadable to colleagues on a shared disk).
     """
     final.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=TEMP_SUFFIX, dir=final.parent)
+    os.fchmod(fd, file_mode())
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -132,6 +165,14 @@ class Manifest:
         except OSError:
             return False
         return not verify_hash or sha256_file(path) == entry.sha256
+
+
+def remove_stray_temps(root: Path) -> list[Path]:
+    """Delete the temp files a killed run left under ``root`` (call with the run lock held). Returns them."""
+    stray = sorted(p for p in Path(root).rglob(f".*{TEMP_SUFFIX}") if p.is_file())
+    for path in stray:
+        path.unlink(missing_ok=True)
+    return stray
 
 
 class RunLock:

@@ -2,7 +2,7 @@
 
 One task per mesh file (the bundled set in ``assets/objects`` plus the globs in ``objects.paths``). Each task
 loads, fixes units, repairs, computes mass properties, decomposes into convex parts (CoACD, cached) and finds
-physics-checked stable poses (:mod:`graspgen.geometry.mesh_prep`), then writes one HDF5 shard::
+physics-checked stable poses (:mod:`graspgen.geometry.prepare`), then writes one HDF5 shard::
 
     /mesh/vertices (v, 3) float64 m         /mesh/faces (f, 3) int32
     /convex/vertices (V, 3) float64 m        /convex/faces (F, 3) int32   (all parts, concatenated)
@@ -26,7 +26,9 @@ from typing import Any
 import numpy as np
 
 from graspgen.errors import InputError
-from graspgen.geometry.mesh_prep import CoacdParams, StablePoseParams, prepare_object
+from graspgen.geometry.convex import CoacdParams
+from graspgen.geometry.prepare import prepare_object
+from graspgen.geometry.stable_poses import StablePoseParams
 from graspgen.io.files import write_h5
 from graspgen.io.objects import object_tree
 from graspgen.validation import check

@@ -12,13 +12,13 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from graspgen.geometry import antipodal as A
-from graspgen.geometry.mesh_prep import load_mesh
-from graspgen.sim.grippers import get_gripper
+from graspgen.geometry.mesh_io import load_mesh
+from graspgen.sim.grippers import load_gripper
 
 BOX_EXTENTS = (0.05, 0.07, 0.12)
 SPHERE_RADIUS = 0.03
 ASSETS = Path(__file__).resolve().parent.parent / "assets" / "objects"
-GRIPPER = get_gripper("robotiq_2f85")
+GRIPPER = load_gripper("robotiq_2f85")
 ARRAY_FIELDS = [f.name for f in dataclasses.fields(A.AntipodalCandidates) if f.name != "rejected"]
 
 
@@ -164,7 +164,7 @@ def test_sphere_contact_lines_pass_near_the_centre(friction):
 @pytest.mark.parametrize("gripper_name, margin, clearance",
                          [("robotiq_2f85", 0.02, 0.01), ("panda", 0.0, 0.0), ("box_jaw", 0.03, 0.03)])
 def test_no_kept_grasp_has_width_outside_the_opening_range(gripper_name, margin, clearance):
-    gripper = get_gripper(gripper_name)
+    gripper = load_gripper(gripper_name)
     mesh = _box()
     params = A.AntipodalParams(num_surface_points=400, width_margin=margin, min_clearance=clearance, approach="any")
     c = _sample(mesh, params, gripper=gripper)
@@ -264,7 +264,7 @@ def test_one_depth_puts_the_tcp_at_the_midpoint_and_depths_do_not_touch_the_rng_
 
 @pytest.mark.parametrize("gripper_name", ["robotiq_2f85", "panda", "box_jaw"])
 def test_grasp_depths_span_zero_to_the_pad_tip_less_the_margin(gripper_name):
-    gripper = get_gripper(gripper_name)
+    gripper = load_gripper(gripper_name)
     half = gripper.pad_size[2] / 2
     np.testing.assert_array_equal(A.grasp_depths(gripper, A.AntipodalParams(num_depths=1)), [0.0])
     d = A.grasp_depths(gripper, A.AntipodalParams(num_depths=4, depth_margin=0.004))
@@ -280,7 +280,7 @@ def test_grasp_depths_span_zero_to_the_pad_tip_less_the_margin(gripper_name):
 def test_contacts_lie_on_the_pad_faces_in_the_tcp_frame(gripper_name, num_depths, margin):
     """Each contact, in the TCP frame, lies on its pad's contact face: x = -+width / 2 (the pad's inner face when
     the jaws have closed to ``width``), |y| <= pad width / 2, |z| <= pad length / 2 - depth_margin."""
-    gripper = get_gripper(gripper_name)
+    gripper = load_gripper(gripper_name)
     _, pad_w, pad_l = gripper.pad_size
     params = A.AntipodalParams(num_surface_points=200, num_depths=num_depths, depth_margin=margin, approach="any")
     for mesh in (_box(), load_mesh(ASSETS / "mug.obj")):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import yaml
 from toy_stages import TOY
 from typer.testing import CliRunner
@@ -14,6 +15,12 @@ runner = CliRunner()
 
 def invoke(*args):
     return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(autouse=True)
+def _away_from_the_repository(tmp_path, monkeypatch):
+    """Commands without --out look at ./out (and the config it remembers): not the repository's own."""
+    monkeypatch.chdir(tmp_path)
 
 
 def test_run_then_run_again_says_nothing_to_do(tmp_path):
@@ -42,7 +49,7 @@ def test_config_errors_exit_2_naming_the_key(tmp_path):
     cfg.write_text("numbers:\n  sizee: 3\n")
     result = invoke("run", "--config", cfg, "--out", tmp_path / "o")
     assert result.exit_code == 2
-    assert "numbers.sizee: unknown key; valid keys: ids, input_file, size, sleep" in result.output
+    assert "numbers.sizee: unknown key; valid keys: disk_full_while, ids, input_file, size, sleep" in result.output
     assert not (tmp_path / "o").exists()  # reported before any work
     result = invoke("run", "nope", "--out", tmp_path / "o")
     assert result.exit_code == 2 and "unknown stage 'nope'" in result.output
@@ -58,8 +65,9 @@ def test_status_and_clean(tmp_path):
     lines = {line.split()[1]: line for line in result.output.splitlines() if line.startswith("│")}
     assert "done" in lines["numbers"] and "4/4" in lines["numbers"]
     assert "missing" in lines["sums"]
+    assert (out / "shards" / "numbers").is_dir()
     assert invoke("clean", "numbers", "--out", out).exit_code == 0
-    assert not (out / "numbers").exists()
+    assert not (out / "shards" / "numbers").exists()
 
 
 def test_config_show_prints_loadable_yaml_with_docs():
@@ -83,3 +91,17 @@ def test_summary_says_which_stages_ran_side_by_side():
     reports = [StageReport("a", wave=0), StageReport("b", wave=1), StageReport("c", wave=1), StageReport("d", wave=2)]
     assert "ran side by side (seconds overlap): b + c" in text(reports)
     assert "side by side" not in text([StageReport("a", wave=0), StageReport("b", wave=1)])
+
+
+def test_commands_without_config_use_the_config_that_made_the_folder(tmp_path):
+    out = tmp_path / "o"
+    assert invoke("run", "--out", out, "--jobs", 1, "--set", "numbers.size=7").exit_code == 0
+    remembered = yaml.safe_load((out / "shards" / "config.yaml").read_text())
+    assert remembered["numbers"]["size"] == 7
+    lines = {line.split()[1]: line for line in invoke("status", "--out", out).output.splitlines()
+             if line.startswith("│")}
+    assert "done" in lines["numbers"] and "done" in lines["sums"]  # not stale against the defaults (size 5)
+    shown = yaml.safe_load(invoke("config", "show", "--out", out).output)
+    assert shown["numbers"]["size"] == 7
+    again = invoke("run", "--out", out, "--jobs", 1)
+    assert again.exit_code == 0 and "Nothing to do" in again.output

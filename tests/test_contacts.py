@@ -7,9 +7,9 @@ import pytest
 import trimesh
 
 from graspgen.geometry.contacts import LEFT, RIGHT, closing_contacts
-from graspgen.sim.grippers import get_gripper
+from graspgen.sim.grippers import load_gripper
 
-GRIPPER = get_gripper("robotiq_2f85")
+GRIPPER = load_gripper("robotiq_2f85")
 
 
 def top_down(x=0.0, y=0.0, z=0.0, yaw=0.0):
@@ -73,5 +73,5 @@ def test_batch_equals_one_by_one():
 
 
 def test_bad_pose_shape():
-    with pytest.raises(ValueError, match="T_tcp: must be"):
+    with pytest.raises(ValueError, match=r"T_tcp: must have shape \(4, 4\) or \(n, 4, 4\)"):
         closing_contacts(trimesh.creation.box((0.05, 0.05, 0.05)), np.eye(3), GRIPPER)

@@ -13,20 +13,15 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from graspgen_cli.app import PROJECT, app
+from graspgen.io.card import render_card
+from graspgen.io.dataset_table import COLUMN_DOCS, REQUIRED_SCHEMA
+from graspgen_cli.app import app
 from pipeline.config import load_config, to_dict
-from pipeline.errors import StageError
 from pipeline.keys import sha256_file
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import committed, run_pipeline
-from stages.dataset import (
-    COLUMN_DOCS,
-    REQUIRED_SCHEMA,
-    join_scene,
-    label_summary,
-    render_card,
-    write_grasps_parquet,
-)
+from pipeline.store import stage_dir
+from stages.project import PROJECT
 
 
 def smoke(out, cache, *sets):
@@ -50,7 +45,7 @@ def invoke(*args):
 
 
 def tables(out, stage):
-    return {e.task: pq.read_table(out / stage / e.file) for e in committed(out, stage).values()}
+    return {e.task: pq.read_table(stage_dir(out, stage) / e.file) for e in committed(out, stage).values()}
 
 
 def keys(out, stage):
@@ -66,6 +61,9 @@ def test_published_layout(run):
     assert sorted(p.stem for p in (d / "objects").glob("*.h5")) == objects and len(objects) == 4
     for name in ("grasps.parquet", "card.md", "card.json", "config.yaml"):
         assert (d / name).is_file(), name
+    # Only the dataset: the engine's shards and manifest of this stage live in OUT/shards/dataset.
+    published = {"grasps.parquet", "card.md", "card.json", "config.yaml", "scenes", "objects", "acronym", "plots"}
+    assert {p.name for p in d.iterdir()} == published
     plots = {p.name for p in (d / "plots").glob("*.png")}
     assert plots == {"outcomes.png", "robustness.png", "epsilon.png", "correlation.png", "examples.png"}
     for png in (d / "plots").glob("*.png"):
@@ -73,7 +71,8 @@ def test_published_layout(run):
     with_grasps = set(pq.read_table(d / "grasps.parquet", columns=["object_name"]).column(0).to_pylist())
     assert {p.stem for p in (d / "acronym").glob("*.h5")} == with_grasps
     # The published shards are the shards themselves (hard links where the file system allows them).
-    shard = root / "out" / "scenes" / committed(root / "out", "scenes")[keys(root / "out", "scenes")[scenes[0]]].file
+    committed_scenes = committed(root / "out", "scenes")
+    shard = stage_dir(root / "out", "scenes") / committed_scenes[keys(root / "out", "scenes")[scenes[0]]].file
     assert sha256_file(d / "scenes" / f"{scenes[0]}.h5") == sha256_file(shard)
     card = json.loads((d / "card.json").read_text())
     assert set(card["files"]) >= {"grasps.parquet", "config.yaml", *(f"plots/{p}" for p in plots)}
@@ -178,7 +177,7 @@ def test_validate_passes_then_names_the_damaged_file(run, tmp_path):
     copy = tmp_path / "copy"
     shutil.copytree(root / "out", copy)
     (entry,) = [e for e in committed(copy, "rollouts").values() if e.task == "scene_000001"]
-    shard = copy / "rollouts" / entry.file
+    shard = stage_dir(copy, "rollouts") / entry.file
     data = bytearray(shard.read_bytes())
     data[len(data) // 2] ^= 0x01
     shard.write_bytes(bytes(data))
@@ -199,7 +198,7 @@ def test_validate_passes_then_names_the_damaged_file(run, tmp_path):
 def test_validate_checks_the_schema(run, tmp_path):
     root, _ = run
     copy = tmp_path / "copy"
-    shutil.copytree(root / "out" / "dataset", copy, ignore=shutil.ignore_patterns("manifest.jsonl", "??"))
+    shutil.copytree(root / "out" / "dataset", copy)
     path = copy / "grasps.parquet"
     t = pq.read_table(path)
     t = t.set_column(t.schema.get_field_index("outcome"), "outcome", t.column("outcome").cast(pa.int64()))
@@ -255,72 +254,3 @@ def test_acronym_export_round_trips_the_poses(run):
         assert (d / "acronym" / acr.object_file).is_file()
         mesh = (d / "acronym" / acr.object_file).read_text().splitlines()
         assert sum(line.startswith("v ") for line in mesh) > 0
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Units
-
-
-def _table(sid, ids, **cols):
-    arrays = {"scene_id": pa.array([sid] * len(ids)), "grasp_id": pa.array(ids, pa.int32())}
-    arrays.update({k: pa.array(v) for k, v in cols.items()})
-    return pa.table(arrays)
-
-
-def test_join_scene_fills_missing_rows_with_nulls_and_renames():
-    base = _table("s", [2, 0, 1], object_name=["a", "b", "c"], object_index=pa.array([0, 1, 1], pa.int16()),
-                  width=[0.1, 0.2, 0.3])
-    labels = _table("s", [1, 2], n=pa.array([4, 8], pa.int32()), width=[9.0, 9.5])
-    t = join_scene([("grasps", base), ("robustness", labels)], "k")
-    assert t.column_names == ["scene_id", "grasp_id", "object_name", "object_index", "width", "robustness_n",
-                              "robustness_width", "source_key"]
-    assert t.column("grasp_id").to_pylist() == [0, 1, 2]
-    assert t.column("object_name").to_pylist() == ["b", "c", "a"]
-    assert t.column("robustness_n").to_pylist() == [None, 4, 8]
-    assert t.column("source_key").to_pylist() == ["k"] * 3
-    assert t.schema.field("robustness_n").metadata[b"stage"] == b"robustness"
-
-
-def test_join_scene_refuses_rows_it_cannot_place():
-    base = _table("s", [0, 1], object_name=["a", "b"])
-    with pytest.raises(StageError, match=r"grasp ids \[5\] are not in the grasps table"):
-        join_scene([("grasps", base), ("rollouts", _table("s", [0, 5], outcome=[1, 2]))], "k")
-    with pytest.raises(StageError, match="duplicate grasp ids"):
-        join_scene([("grasps", base), ("rollouts", _table("s", [0, 0], outcome=[1, 2]))], "k")
-    with pytest.raises(StageError, match="rows of scene"):
-        join_scene([("grasps", base), ("rollouts", _table("t", [0], outcome=[1]))], "k")
-
-
-def test_row_groups_hold_whole_scenes(tmp_path):
-    scenes = [join_scene([("grasps", _table(f"s{i}", list(range(n)), object_name=["a"] * n))], "k")
-              for i, n in enumerate([3, 4, 2, 6, 1])]
-    path = tmp_path / "g.parquet"
-    assert write_grasps_parquet(path, scenes, row_group_rows=6, metadata={b"x": b"y"}) == 16
-    pf = pq.ParquetFile(path)
-    sizes = [pf.metadata.row_group(g).num_rows for g in range(pf.num_row_groups)]
-    assert sizes == [3, 6, 6, 1]  # s0 | s1 s2 | s3 (alone: would pass 6) | s4
-    other = tmp_path / "h.parquet"
-    write_grasps_parquet(other, scenes, row_group_rows=6, metadata={b"x": b"y"})
-    assert sha256_file(path) == sha256_file(other)
-
-
-def test_label_summary_discrete_and_binned():
-    s = label_summary(np.array([0.0, 0.25, 0.25, 1.0, np.nan]), bins=4, unit_range=True)
-    assert s["n"] == 4 and s["histogram"] == {"values": [0.0, 0.25, 1.0], "counts": [1, 2, 1]}
-    s = label_summary(np.linspace(0, 1, 101), bins=4, unit_range=True)
-    assert s["histogram"]["edges"] == [0.0, 0.25, 0.5, 0.75, 1.0] and sum(s["histogram"]["counts"]) == 101
-    # k/40 fractions: those on an edge go up, never to the neighbour below through rounding
-    s = label_summary(np.arange(41) / 40, bins=20, unit_range=True)
-    assert s["histogram"]["counts"] == [2] * 19 + [3]
-    assert label_summary(np.array([np.nan]), bins=4, unit_range=False) == {"n": 0}
-
-
-def test_ranks_average_ties_like_scipy():
-    from scipy.stats import rankdata
-
-    from stages.dataset import _ranks
-
-    rng = np.random.default_rng(0)
-    for n in (1, 2, 7, 40):
-        x = rng.integers(0, 4, size=n).astype(float)
-        np.testing.assert_allclose(_ranks(x), rankdata(x))

@@ -14,14 +14,15 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from graspgen.io.arrow import fixed_list
-from graspgen.sim.grippers import get_gripper
+from graspgen.sim.grippers import load_gripper
 from graspgen.sim.scene_model import Camera
 from graspgen.viz import grasp_view as V
-from graspgen_cli.app import PROJECT, app, find_shard
+from graspgen_cli.app import app, find_shard
 from pipeline.cli import load
+from stages.project import PROJECT
 
 ROOT = Path(__file__).resolve().parent.parent
-GRIPPER = get_gripper("box_jaw")  # pad length 0.04 m: round numbers below
+GRIPPER = load_gripper("box_jaw")  # pad length 0.04 m: round numbers below
 W, H, F, CX, CY = 160, 120, 100.0, 80.0, 60.0
 
 

@@ -63,7 +63,7 @@ def _box_world(box_friction: float, *, box_mass: float = 1.0, gripper: str = "ro
     </mujoco>"""
     world = mujoco.MjSpec.from_string(xml)
     G.physics_options(world, options)
-    G.attach_gripper(world, G.get_gripper(gripper), friction=friction_mode)
+    G.attach_gripper(world, G.load_gripper(gripper), friction=friction_mode)
     return world
 
 
@@ -73,7 +73,7 @@ def _grasp_and_lift(model, data, *, lift: float = 0.2, lift_time: float = 1.0) -
     T = np.eye(4)
     T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # x closing along world x, z approach along world -z
     T[:3, 3] = [0.0, 0.0, BOX_HALF]
-    G.set_gripper_width(model, data, G.get_gripper("robotiq_2f85").max_width, instant=True)
+    G.set_gripper_width(model, data, G.load_gripper("robotiq_2f85").max_width, instant=True)
     G.set_gripper_pose(model, data, T)
     z0 = float(data.xpos[box][2])
     n_steps, step_time = 0, 0.0
@@ -126,14 +126,14 @@ def _pad_contacts(model, data) -> tuple[bool, bool]:
 def test_registry_holds_the_three_grippers():
     assert set(G.GRIPPERS) == {"robotiq_2f85", "panda", "box_jaw"}
     assert G.DEFAULT_GRIPPER == "robotiq_2f85"
-    f85 = G.get_gripper("robotiq_2f85")
+    f85 = G.load_gripper("robotiq_2f85")
     assert (f85.min_width, f85.max_width) == (0.0, 0.085)
     assert 20.0 <= f85.force_limit <= 235.0  # Robotiq 2F-85 data sheet grip force range
     assert 0.13 <= f85.tcp_offset <= 0.15
     assert f85.pad_size[1] == pytest.approx(0.022)
-    panda = G.get_gripper("panda")
+    panda = G.load_gripper("panda")
     assert (panda.max_width, panda.tcp_offset, panda.force_limit) == (0.08, 0.1034, 70.0)
-    assert G.get_gripper("box_jaw").max_width == 0.1
+    assert G.load_gripper("box_jaw").max_width == 0.1
     for spec in G.GRIPPERS.values():
         assert G.GRIPPERS[spec.name] is spec
         assert spec.to_dict()["name"] == spec.name
@@ -141,7 +141,7 @@ def test_registry_holds_the_three_grippers():
 
 def test_unknown_gripper_raises_settings_error_listing_choices():
     with pytest.raises(SettingsError) as err:
-        G.get_gripper("x")
+        G.load_gripper("x")
     assert str(err.value) == "gripper: unknown 'x'; choose one of: box_jaw, panda, robotiq_2f85"
     assert isinstance(err.value, GraspGenError)
 
@@ -167,11 +167,11 @@ def test_unknown_gripper_raises_settings_error_listing_choices():
 )
 def test_spec_validation_names_the_field(change, field):
     with pytest.raises(ValueError, match=field):
-        dataclasses.replace(G.get_gripper("box_jaw"), **change)
+        dataclasses.replace(G.load_gripper("box_jaw"), **change)
 
 
 def test_spec_is_frozen_and_normalised():
-    spec = dataclasses.replace(G.get_gripper("box_jaw"), pad_size=[0.01, 0.03, 0.04], max_width=1)
+    spec = dataclasses.replace(G.load_gripper("box_jaw"), pad_size=[0.01, 0.03, 0.04], max_width=1)
     assert spec.pad_size == (0.01, 0.03, 0.04) and isinstance(spec.max_width, float)
     with pytest.raises(dataclasses.FrozenInstanceError):
         spec.max_width = 0.2  # type: ignore[misc]
@@ -198,7 +198,7 @@ def test_physics_options_apply_to_spec_and_model():
 
 @pytest.mark.parametrize("name", GRIPPER_NAMES)
 def test_gripper_compiles_with_tcp_frame_at_origin(name):
-    spec = G.get_gripper(name)
+    spec = G.load_gripper(name)
     model, data = _compile(G.build_gripper(spec))
     base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "gripper/base")
     tcp_site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "gripper/tcp")
@@ -235,7 +235,7 @@ def test_gripper_compiles_with_tcp_frame_at_origin(name):
 
 @pytest.mark.parametrize("name", GRIPPER_NAMES)
 def test_width_tracks_command_and_pads_stay_centred(name):
-    spec = G.get_gripper(name)
+    spec = G.load_gripper(name)
     gspec = G.build_gripper(spec)
     gspec.option.gravity = [0.0, 0.0, 0.0]
     model, data = _compile(gspec)
@@ -255,7 +255,7 @@ def test_width_tracks_command_and_pads_stay_centred(name):
 
 @pytest.mark.parametrize("name", GRIPPER_NAMES)
 def test_width_command_beyond_range_is_clipped(name):
-    spec = G.get_gripper(name)
+    spec = G.load_gripper(name)
     gspec = G.build_gripper(spec)
     gspec.option.gravity = [0.0, 0.0, 0.0]
     model, data = _compile(gspec)
@@ -281,8 +281,8 @@ def test_attach_looks_everything_up_by_name():
       <actuator><position name="scene_act" joint="slide" kp="10"/></actuator>
     </mujoco>""")
     G.physics_options(world, G.PhysicsOptions(gravity=(0.0, 0.0, 0.0)))
-    G.attach_gripper(world, G.get_gripper("panda"), name_prefix="a/")
-    G.attach_gripper(world, G.get_gripper("box_jaw"), name_prefix="b/")
+    G.attach_gripper(world, G.load_gripper("panda"), name_prefix="a/")
+    G.attach_gripper(world, G.load_gripper("box_jaw"), name_prefix="b/")
     model, data = _compile(world)
     assert model.nu == 3 and model.nmocap == 2
     scene_act = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, "scene_act")
@@ -303,7 +303,7 @@ def test_attach_looks_everything_up_by_name():
     with pytest.raises(KeyError):
         G.gripper_width(model, data, prefix="gripper/")
     with pytest.raises(ValueError, match="name_prefix"):
-        G.attach_gripper(world, G.get_gripper("panda"), name_prefix="")
+        G.attach_gripper(world, G.load_gripper("panda"), name_prefix="")
 
 
 # ------------------------------------------------------------------------------------------------- pose
@@ -314,7 +314,7 @@ def test_set_gripper_pose_puts_tcp_there(name):
     rng = np.random.default_rng(7)
     world = mujoco.MjSpec.from_string('<mujoco><worldbody><geom type="plane" size="2 2 0.1"/></worldbody></mujoco>')
     G.physics_options(world)
-    G.attach_gripper(world, G.get_gripper(name))
+    G.attach_gripper(world, G.load_gripper(name))
     model, data = _compile(world)
     for _ in range(5):
         T = np.eye(4)
@@ -342,7 +342,7 @@ def test_2f85_grasps_and_lifts_a_box(capsys):
     assert res["dz"] > 0.15, res
     assert res["slip"] < 1e-3, res  # the box hardly moves in the TCP frame during lift + hold
     bx, by, _ = res["box_in_tcp"]
-    assert abs(bx) < 2e-3 and abs(by) < G.get_gripper("robotiq_2f85").pad_size[1] / 2, res  # between the pads
+    assert abs(bx) < 2e-3 and abs(by) < G.load_gripper("robotiq_2f85").pad_size[1] / 2, res  # between the pads
     assert res["width"] == pytest.approx(2 * BOX_HALF, abs=1.5e-3), res  # pads on the faces, barely penetrating
     assert _pad_contacts(model, data) == (True, True)
     with capsys.disabled():

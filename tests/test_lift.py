@@ -54,7 +54,7 @@ def _world(objects=None, *, table: bool = True, scene_actuator: bool = False,
         slider.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.01], mass=0.1)
         act = spec.add_actuator(name="scene_act", target="slide", trntype=mujoco.mjtTrn.mjTRN_JOINT)
         act.set_to_position(kp=10.0)
-    G.attach_gripper(spec, G.get_gripper(gripper))
+    G.attach_gripper(spec, G.load_gripper(gripper))
     return spec.compile()
 
 
@@ -264,7 +264,7 @@ def test_ids_by_name_and_callers_model_untouched():
     np.testing.assert_array_equal(model.dof_damping, before[1])
     act = names.index("gripper/width")
     np.testing.assert_array_equal(sim.model.actuator_forcerange[act], [-30.0, 30.0])
-    assert sim.closing_speed == pytest.approx(G.get_gripper("robotiq_2f85").closing_speed)
+    assert sim.closing_speed == pytest.approx(G.load_gripper("robotiq_2f85").closing_speed)
     assert (sim.min_width, sim.max_width) == (0.0, 0.085) and sim.grip_force == 30.0
 
 

@@ -1,20 +1,34 @@
-"""Tests of stages/mesh_prep.py against analytic truth. Meshes are built inline; nothing in assets/ is used."""
+"""Tests of the mesh-preparation steps (graspgen.geometry: mesh_io, repair, units, mass, convex, stable_poses,
+prepare) against analytic truth. Meshes are built inline; nothing in assets/ is used."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
 
+import coacd
 import numpy as np
 import pytest
 import trimesh
 
 from graspgen.errors import InputError
-from graspgen.geometry import mesh_prep as mp
+from graspgen.geometry.convex import CoacdParams, convex_decomposition
+from graspgen.geometry.mass import _physical_inertia, mass_properties
+from graspgen.geometry.mesh_io import load_mesh
+from graspgen.geometry.prepare import prepare_object
+from graspgen.geometry.repair import repair_mesh
+from graspgen.geometry.stable_poses import (
+    StablePoseParams,
+    build_settle_model,
+    resting_transform,
+    settle_pose,
+    stable_poses,
+)
+from graspgen.geometry.units import normalize_units
 
 # Cheap CoACD settings: the shapes here are simple, and the whole file must stay fast on one core.
-FAST_COACD = mp.CoacdParams(threshold=0.05, resolution=300, mcts_iterations=20, mcts_nodes=10, preprocess_resolution=20)
-POSES = mp.StablePoseParams()
+FAST_COACD = CoacdParams(threshold=0.05, resolution=300, mcts_iterations=20, mcts_nodes=10, preprocess_resolution=20)
+POSES = StablePoseParams()
 DENSITY = 800.0  # kg/m^3
 
 
@@ -35,11 +49,11 @@ def l_shape() -> trimesh.Trimesh:
 L_VOLUME = 2 * 0.1 * 0.02 * 0.02 - 0.02**3
 
 
-def prepared(mesh: trimesh.Trimesh, coacd: mp.CoacdParams = FAST_COACD):
+def prepared(mesh: trimesh.Trimesh, coacd: CoacdParams = FAST_COACD):
     """Repair, weigh and decompose a mesh already in metres."""
-    repaired, report = mp.repair_mesh(mesh)
-    mass = mp.mass_properties(repaired, DENSITY, watertight=report.watertight)
-    parts = mp.convex_decomposition(repaired, coacd)
+    repaired, report = repair_mesh(mesh)
+    mass = mass_properties(repaired, DENSITY, watertight=report.watertight)
+    parts = convex_decomposition(repaired, coacd)
     return repaired, mass, parts
 
 
@@ -71,16 +85,16 @@ def up_vector(transform: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize(
     ("cls", "field", "value"),
     [
-        (mp.CoacdParams, "threshold", 2.0),
-        (mp.CoacdParams, "threshold", 0.0),
-        (mp.CoacdParams, "max_convex_hull", 0),
-        (mp.CoacdParams, "resolution", 0),
-        (mp.CoacdParams, "mcts_depth", 1.5),
-        (mp.StablePoseParams, "min_probability", 1.0),
-        (mp.StablePoseParams, "max_poses", 0),
-        (mp.StablePoseParams, "settle_time", -1.0),
-        (mp.StablePoseParams, "max_tilt", 0.0),
-        (mp.StablePoseParams, "friction", float("nan")),
+        (CoacdParams, "threshold", 2.0),
+        (CoacdParams, "threshold", 0.0),
+        (CoacdParams, "max_convex_hull", 0),
+        (CoacdParams, "resolution", 0),
+        (CoacdParams, "mcts_depth", 1.5),
+        (StablePoseParams, "min_probability", 1.0),
+        (StablePoseParams, "max_poses", 0),
+        (StablePoseParams, "settle_time", -1.0),
+        (StablePoseParams, "max_tilt", 0.0),
+        (StablePoseParams, "friction", float("nan")),
     ],
 )
 def test_params_reject_bad_values_naming_the_field(cls, field, value):
@@ -89,7 +103,7 @@ def test_params_reject_bad_values_naming_the_field(cls, field, value):
 
 
 def test_params_accept_unlimited_hulls():
-    assert mp.CoacdParams(max_convex_hull=-1).max_convex_hull == -1
+    assert CoacdParams(max_convex_hull=-1).max_convex_hull == -1
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -124,28 +138,28 @@ def test_load_mesh_rejects_broken_files(tmp_path, name, content, reason):
     path = tmp_path / name
     path.write_bytes(content)
     with pytest.raises(InputError) as info:
-        mp.load_mesh(path)
+        load_mesh(path)
     assert name in str(info.value)
     assert reason in str(info.value)
 
 
 def test_load_mesh_rejects_missing_file(tmp_path):
     with pytest.raises(InputError, match=r"nothere\.obj: file not found"):
-        mp.load_mesh(tmp_path / "nothere.obj")
+        load_mesh(tmp_path / "nothere.obj")
 
 
 def test_load_mesh_rejects_unsupported_suffix(tmp_path):
     path = tmp_path / "mesh.xyz"
     path.write_text("0 0 0\n")
     with pytest.raises(InputError, match=r"mesh\.xyz: unsupported mesh format"):
-        mp.load_mesh(path)
+        load_mesh(path)
 
 
 def test_load_mesh_reads_valid_obj(tmp_path):
     box = trimesh.creation.box((0.1, 0.06, 0.03))
     path = tmp_path / "box.obj"
     box.export(path)
-    mesh = mp.load_mesh(path)
+    mesh = load_mesh(path)
     assert len(mesh.faces) == 12
     np.testing.assert_allclose(mesh.extents, (0.1, 0.06, 0.03), rtol=1e-6)
     assert mesh.metadata["file_name"] == "box.obj"
@@ -159,7 +173,7 @@ def test_load_mesh_merges_scene_with_transforms(tmp_path):
     scene.add_geometry(trimesh.creation.box((0.02, 0.02, 0.02)))
     path = tmp_path / "two.glb"
     scene.export(path)
-    mesh = mp.load_mesh(path)
+    mesh = load_mesh(path)
     np.testing.assert_allclose(mesh.bounds, [(-0.01, -0.01, -0.01), (0.11, 0.01, 0.01)], atol=1e-6)
 
 
@@ -170,7 +184,7 @@ def test_load_mesh_merges_scene_with_transforms(tmp_path):
 
 def test_normalize_units_guesses_millimetres():
     cylinder = trimesh.creation.cylinder(radius=40.0, height=95.0)
-    scaled, scale, warning = mp.normalize_units(cylinder, source="mug.obj")
+    scaled, scale, warning = normalize_units(cylinder, source="mug.obj")
     assert scale == 0.001
     np.testing.assert_allclose(scaled.extents.max(), 0.095, rtol=1e-12)
     assert warning == "mug.obj: largest extent 95.0 units, assumed millimetres, scaled by 0.001"
@@ -178,7 +192,7 @@ def test_normalize_units_guesses_millimetres():
 
 def test_normalize_units_keeps_plausible_metres():
     box = trimesh.creation.box((0.1, 0.05, 0.02))
-    scaled, scale, warning = mp.normalize_units(box)
+    scaled, scale, warning = normalize_units(box)
     assert scale == 1.0 and warning is None
     np.testing.assert_array_equal(scaled.vertices, box.vertices)
 
@@ -186,22 +200,22 @@ def test_normalize_units_keeps_plausible_metres():
 def test_normalize_units_rejects_1000_unit_mesh():
     tower = trimesh.creation.box((100.0, 100.0, 1000.0))
     with pytest.raises(InputError, match=r"tower\.obj: absurd size after unit handling: .*1\.0 m as millimetres"):
-        mp.normalize_units(tower, source="tower.obj")
+        normalize_units(tower, source="tower.obj")
 
 
 def test_normalize_units_honours_explicit_scale():
     box = trimesh.creation.box((10.0, 5.0, 2.0))
-    scaled, scale, warning = mp.normalize_units(box, scale=0.01)
+    scaled, scale, warning = normalize_units(box, scale=0.01)
     assert scale == 0.01 and warning is None
     np.testing.assert_allclose(scaled.extents, (0.1, 0.05, 0.02), rtol=1e-12)
     with pytest.raises(InputError, match="absurd size after unit handling"):
-        mp.normalize_units(box, scale=1.0)
+        normalize_units(box, scale=1.0)
 
 
 def test_normalize_units_ignores_stray_unreferenced_vertex():
     box = trimesh.creation.box((0.1, 0.05, 0.02))
     stray = trimesh.Trimesh(np.vstack([box.vertices, [[500.0, 0.0, 0.0]]]), box.faces, process=False)
-    assert mp.normalize_units(stray)[1] == 1.0
+    assert normalize_units(stray)[1] == 1.0
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -217,7 +231,7 @@ def test_repair_fixes_flipped_faces_and_duplicate_vertices():
     broken = trimesh.Trimesh(soup_vertices, soup_faces, process=False)
     assert not broken.is_watertight
 
-    repaired, report = mp.repair_mesh(broken)
+    repaired, report = repair_mesh(broken)
 
     assert report.watertight
     assert report.merged_vertices == 36 - 8
@@ -229,7 +243,7 @@ def test_repair_fixes_flipped_faces_and_duplicate_vertices():
 def test_repair_removes_degenerate_and_duplicate_faces():
     box = trimesh.creation.box((0.1, 0.06, 0.03))
     faces = np.vstack([box.faces, box.faces[:2], [[0, 0, 1]]])
-    repaired, report = mp.repair_mesh(trimesh.Trimesh(box.vertices, faces, process=False))
+    repaired, report = repair_mesh(trimesh.Trimesh(box.vertices, faces, process=False))
     assert report.removed_duplicate_faces == 2
     assert report.removed_degenerate_faces == 1
     assert report.watertight and len(repaired.faces) == 12
@@ -238,12 +252,12 @@ def test_repair_removes_degenerate_and_duplicate_faces():
 def test_repair_reports_open_mesh():
     box = trimesh.creation.box((0.1, 0.06, 0.03))
     open_box = trimesh.Trimesh(box.vertices, box.faces[:-2], process=False)  # one side missing: a square hole
-    repaired, report = mp.repair_mesh(open_box)
+    repaired, report = repair_mesh(open_box)
     assert report.filled_holes and report.watertight  # trimesh fills holes of up to four edges
 
     bowl = trimesh.creation.icosphere(2, 0.05)
     bowl = trimesh.Trimesh(bowl.vertices, bowl.faces[bowl.triangles_center[:, 2] < 0.02], process=False)
-    _, report = mp.repair_mesh(bowl)
+    _, report = repair_mesh(bowl)
     assert not report.watertight
     assert "mesh is not watertight after repair" in report.notes
 
@@ -257,7 +271,7 @@ def test_mass_properties_of_box_are_exact():
     a, b, c, rho = 0.1, 0.06, 0.03, 700.0
     box = trimesh.creation.box((a, b, c))
     box.apply_translation((0.2, -0.1, 0.05))
-    props = mp.mass_properties(box, rho, watertight=True)
+    props = mass_properties(box, rho, watertight=True)
     mass = rho * a * b * c
     assert props.mass == pytest.approx(mass, rel=1e-9)
     assert props.volume == pytest.approx(a * b * c, rel=1e-9)
@@ -271,7 +285,7 @@ def test_mass_properties_of_box_are_exact():
 def test_mass_properties_of_sphere_within_one_percent():
     radius, rho = 0.04, 1000.0
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=radius)
-    props = mp.mass_properties(sphere, rho, watertight=True)
+    props = mass_properties(sphere, rho, watertight=True)
     mass = rho * 4 / 3 * math.pi * radius**3
     # The inscribed polyhedron lacks ~0.9 % of the mass and ~1.4 % of the inertia of the true sphere; its radius
     # of gyration, sqrt(2/5) r, is within 1 %.
@@ -284,7 +298,7 @@ def test_mass_properties_of_sphere_within_one_percent():
 def test_mass_properties_of_open_mesh_use_convex_hull():
     box = trimesh.creation.box((0.1, 0.06, 0.03))
     open_box = trimesh.Trimesh(box.vertices, box.faces[:-2], process=False)
-    props = mp.mass_properties(open_box, 1000.0, watertight=False)
+    props = mass_properties(open_box, 1000.0, watertight=False)
     assert props.from_convex_hull
     assert props.volume == pytest.approx(0.1 * 0.06 * 0.03, rel=1e-9)
 
@@ -295,17 +309,17 @@ def test_mass_properties_reject_zero_volume():
         flat.vertices * (1.0, 1.0, 0.0), flat.faces, process=False, metadata={"file_name": "flat.obj"}
     )
     with pytest.raises(InputError, match=r"flat\.obj: zero volume"):
-        mp.mass_properties(flat, 1000.0, watertight=True)
+        mass_properties(flat, 1000.0, watertight=True)
 
 
 def test_physical_inertia_fixes_rounding_on_the_triangle_inequality():
     plate = np.diag([1.0, 2.0, 3.0 + 1e-12])  # a flat plate has I3 = I1 + I2; rounding pushed it over
-    fixed = mp._physical_inertia(plate, "plate")
+    fixed = _physical_inertia(plate, "plate")
     moments = np.linalg.eigvalsh(fixed)
     assert moments[2] <= moments[0] + moments[1]
     np.testing.assert_allclose(fixed, plate, atol=1e-11)
     with pytest.raises(InputError, match="inertia is not physical"):
-        mp._physical_inertia(np.diag([1.0, 1.0, 3.0]), "bad")
+        _physical_inertia(np.diag([1.0, 1.0, 3.0]), "bad")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -314,9 +328,9 @@ def test_physical_inertia_fixes_rounding_on_the_triangle_inequality():
 
 
 def test_convex_decomposition_of_box_is_the_box(monkeypatch):
-    monkeypatch.setattr(mp.coacd, "run_coacd", _fail)  # a convex mesh must not go through CoACD
+    monkeypatch.setattr(coacd, "run_coacd", _fail)  # a convex mesh must not go through CoACD
     box = trimesh.creation.box((0.1, 0.06, 0.03))
-    parts = mp.convex_decomposition(box, FAST_COACD)
+    parts = convex_decomposition(box, FAST_COACD)
     assert len(parts) == 1
     vertices, faces = parts[0]
     assert vertices.dtype == np.float64 and faces.dtype == np.int32
@@ -327,7 +341,7 @@ def test_convex_decomposition_of_box_is_the_box(monkeypatch):
 
 def test_convex_decomposition_of_l_shape(capfd):
     mesh = l_shape()
-    parts = mp.convex_decomposition(mesh, FAST_COACD)
+    parts = convex_decomposition(mesh, FAST_COACD)
     assert "CoACD" not in capfd.readouterr().out  # its per-run log is silenced
     assert len(parts) >= 2
     for vertices, faces in parts:
@@ -336,7 +350,7 @@ def test_convex_decomposition_of_l_shape(capfd):
         assert part.volume == pytest.approx(part.convex_hull.volume, rel=1e-9)
     assert union_volume(parts) == pytest.approx(L_VOLUME, rel=0.10)
 
-    again = mp.convex_decomposition(mesh, FAST_COACD)
+    again = convex_decomposition(mesh, FAST_COACD)
     assert len(again) == len(parts)
     for (v1, f1), (v2, f2) in zip(parts, again, strict=True):
         assert v1.tobytes() == v2.tobytes() and f1.tobytes() == f2.tobytes()
@@ -358,7 +372,7 @@ def box_object():
 
 def test_stable_poses_of_box(box_object):
     mesh, mass, parts = box_object
-    transforms, probs = mp.stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
+    transforms, probs = stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
     assert transforms.shape == (len(probs), 4, 4) and transforms.dtype == np.float64
     assert probs.sum() == pytest.approx(1.0, abs=1e-12)
     assert np.all(np.diff(probs) <= 0)
@@ -374,10 +388,10 @@ def test_stable_poses_of_box(box_object):
 
 def test_stable_poses_are_at_rest_when_resimulated(box_object):
     mesh, mass, parts = box_object
-    transforms, _ = mp.stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
-    model = mp.build_settle_model(parts, mass, POSES)
+    transforms, _ = stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
+    model = build_settle_model(parts, mass, POSES)
     for transform in transforms:
-        result = mp.settle_pose(model, transform, POSES)
+        result = settle_pose(model, transform, POSES)
         assert result.at_rest
         tilt = math.acos(np.clip(result.rotation[2] @ transform[2, :3], -1.0, 1.0))
         assert tilt < POSES.max_tilt
@@ -386,11 +400,11 @@ def test_stable_poses_are_at_rest_when_resimulated(box_object):
 
 def test_stable_poses_are_deterministic_and_leave_global_rng_alone(box_object):
     mesh, mass, parts = box_object
-    noisy = mp.StablePoseParams(com_sigma=0.002, com_samples=4)
+    noisy = StablePoseParams(com_sigma=0.002, com_samples=4)
     global_state = np.random.get_state()[1].copy()
     trimesh_state = trimesh.util._RANDOM_DEFAULT.bit_generator.state
-    first = mp.stable_poses(mesh, mass, parts, noisy, np.random.default_rng(7))
-    second = mp.stable_poses(mesh, mass, parts, noisy, np.random.default_rng(7))
+    first = stable_poses(mesh, mass, parts, noisy, np.random.default_rng(7))
+    second = stable_poses(mesh, mass, parts, noisy, np.random.default_rng(7))
     assert first[0].tobytes() == second[0].tobytes()
     assert first[1].tobytes() == second[1].tobytes()
     np.testing.assert_array_equal(np.random.get_state()[1], global_state)
@@ -399,8 +413,8 @@ def test_stable_poses_are_deterministic_and_leave_global_rng_alone(box_object):
 
 def test_stable_poses_without_settle_check(box_object):
     mesh, mass, parts = box_object
-    params = mp.StablePoseParams(settle_check=False, max_poses=2)
-    transforms, probs = mp.stable_poses(mesh, mass, parts, params, np.random.default_rng(0))
+    params = StablePoseParams(settle_check=False, max_poses=2)
+    transforms, probs = stable_poses(mesh, mass, parts, params, np.random.default_rng(0))
     assert len(probs) == 2 and probs.sum() == pytest.approx(1.0)
     # two slots go to the two most probable classes: the largest face first, then the middle one
     assert abs(up_vector(transforms[0])[2]) == pytest.approx(1.0)
@@ -410,7 +424,7 @@ def test_stable_poses_without_settle_check(box_object):
 def test_stable_poses_of_sphere_are_one_class():
     # 320 faces, each far below min_probability, but all one class (the centre rests at the same height)
     mesh, mass, parts = prepared(trimesh.creation.icosphere(2, 0.03))
-    transforms, probs = mp.stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
+    transforms, probs = stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
     assert 1 <= len(probs) <= POSES.max_poses and probs.sum() == pytest.approx(1.0)
     for transform in transforms:
         assert trimesh.transform_points(mesh.vertices, transform)[:, 2].min() == pytest.approx(0.0, abs=1e-6)
@@ -422,8 +436,8 @@ def test_faceted_cylinder_keeps_its_side_poses():
     raw_t, raw_p = trimesh.poses.compute_stable_poses(mesh, center_mass=mass.center_of_mass, sigma=0.0, seed=0)
     side = np.abs(np.asarray(raw_t)[:, 2, 2]) < 1e-6  # cylinder axis horizontal
     assert raw_p[side].max() < POSES.min_probability < raw_p[side].sum()
-    params = mp.StablePoseParams(settle_check=False)
-    transforms, probs = mp.stable_poses(mesh, mass, parts, params, np.random.default_rng(0))
+    params = StablePoseParams(settle_check=False)
+    transforms, probs = stable_poses(mesh, mass, parts, params, np.random.default_rng(0))
     lying = np.abs(transforms[:, 2, 2]) < 1e-6
     assert lying.any() and (~lying).any()
     assert probs[lying].sum() == pytest.approx(raw_p[side].sum() / raw_p.sum(), abs=1e-9)
@@ -436,20 +450,20 @@ def thin_cylinder():
 
 
 def _with_extra_candidate(monkeypatch, normal, prob):
-    original = mp.trimesh.poses.compute_stable_poses
+    original = trimesh.poses.compute_stable_poses
 
     def patched(mesh, **kwargs):
         transforms, probs = original(mesh, **kwargs)
-        extra = mp.resting_transform(mesh.convex_hull.vertices, kwargs["center_mass"], np.asarray(normal))
+        extra = resting_transform(mesh.convex_hull.vertices, kwargs["center_mass"], np.asarray(normal))
         return np.concatenate([extra[None], transforms]), np.concatenate([[prob], probs])
 
-    monkeypatch.setattr(mp.trimesh.poses, "compute_stable_poses", patched)
+    monkeypatch.setattr(trimesh.poses, "compute_stable_poses", patched)
 
 
 def test_thin_cylinder_lies_on_its_side(thin_cylinder):
     # the quasi-static analysis gives the end caps no probability: every pose is on a side facet
     mesh, mass, parts = thin_cylinder
-    transforms, probs = mp.stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
+    transforms, probs = stable_poses(mesh, mass, parts, POSES, np.random.default_rng(0))
     assert len(probs) == POSES.max_poses
     for transform in transforms:
         assert abs(up_vector(transform)[2]) < 1e-9  # mesh z (the axis) horizontal
@@ -462,7 +476,7 @@ def _raw_candidates(mesh, mass, params):
     return probs[probs >= params.min_probability]
 
 
-UNCAPPED = mp.StablePoseParams(max_poses=64)
+UNCAPPED = StablePoseParams(max_poses=64)
 
 
 def test_leaning_cylinder_topples_and_merges_into_a_side_pose(thin_cylinder, monkeypatch):
@@ -472,7 +486,7 @@ def test_leaning_cylinder_topples_and_merges_into_a_side_pose(thin_cylinder, mon
     raw = _raw_candidates(mesh, mass, UNCAPPED)
     lean = 0.35
     _with_extra_candidate(monkeypatch, (math.sin(lean), 0.0, -math.cos(lean)), 0.5)
-    transforms, probs = mp.stable_poses(mesh, mass, parts, UNCAPPED, np.random.default_rng(0))
+    transforms, probs = stable_poses(mesh, mass, parts, UNCAPPED, np.random.default_rng(0))
     assert probs.sum() == pytest.approx(1.0)
     for transform in transforms:
         assert abs(up_vector(transform)[2]) < 1e-9  # no leaning pose survives
@@ -487,7 +501,7 @@ def test_upright_cylinder_stays_standing(thin_cylinder, monkeypatch):
     mesh, mass, parts = thin_cylinder
     raw = _raw_candidates(mesh, mass, UNCAPPED)
     _with_extra_candidate(monkeypatch, (0.0, 0.0, -1.0), 0.5)
-    transforms, probs = mp.stable_poses(mesh, mass, parts, UNCAPPED, np.random.default_rng(0))
+    transforms, probs = stable_poses(mesh, mass, parts, UNCAPPED, np.random.default_rng(0))
     # the upright candidate is kept, with the other end cap (same class: its centre rests as high)
     upright = np.array([abs(up_vector(t)[2]) > 1 - 1e-12 for t in transforms])
     assert len(probs) == len(raw) + upright.sum() and 1 <= upright.sum() <= 2
@@ -511,7 +525,7 @@ def test_prepare_object_end_to_end_with_cache(tmp_path, monkeypatch):
     mesh.export(path)
     cache = tmp_path / "cache"
 
-    first = mp.prepare_object(
+    first = prepare_object(
         path, density=DENSITY, coacd=FAST_COACD, poses=POSES, rng=np.random.default_rng(1), coacd_cache_dir=cache
     )
 
@@ -526,8 +540,8 @@ def test_prepare_object_end_to_end_with_cache(tmp_path, monkeypatch):
     assert len(list(cache.glob("*.npz"))) == 1
     assert not list(cache.glob("*.tmp"))
 
-    monkeypatch.setattr(mp.coacd, "run_coacd", _fail)
-    second = mp.prepare_object(
+    monkeypatch.setattr(coacd, "run_coacd", _fail)
+    second = prepare_object(
         path, density=DENSITY, coacd=FAST_COACD, poses=POSES, rng=np.random.default_rng(1), coacd_cache_dir=cache
     )
 
@@ -542,12 +556,12 @@ def test_prepare_object_recomputes_over_a_corrupt_cache_entry(tmp_path):
     path = tmp_path / "ell.obj"
     l_shape().export(path)
     cache = tmp_path / "cache"
-    first = mp.prepare_object(
+    first = prepare_object(
         path, density=DENSITY, coacd=FAST_COACD, poses=POSES, rng=np.random.default_rng(1), coacd_cache_dir=cache
     )
     (entry,) = cache.glob("*.npz")
     entry.write_bytes(b"not an npz")
-    second = mp.prepare_object(
+    second = prepare_object(
         path, density=DENSITY, coacd=FAST_COACD, poses=POSES, rng=np.random.default_rng(1), coacd_cache_dir=cache
     )
     assert [v.tobytes() for v, _ in first.convex_parts] == [v.tobytes() for v, _ in second.convex_parts]
@@ -557,7 +571,7 @@ def test_prepare_object_reports_broken_file(tmp_path):
     path = tmp_path / "tower.obj"
     trimesh.creation.box((100.0, 100.0, 1000.0)).export(path)
     with pytest.raises(InputError, match=r"tower\.obj: absurd size"):
-        mp.prepare_object(path, density=DENSITY, rng=np.random.default_rng(0))
+        prepare_object(path, density=DENSITY, rng=np.random.default_rng(0))
 
 
 def test_parts_that_fill_a_cavity_are_refined():
@@ -567,13 +581,13 @@ def test_parts_that_fill_a_cavity_are_refined():
     inner = trimesh.creation.cylinder(radius=0.027, height=0.06, sections=24)
     inner.apply_translation((0, 0, 0.004))
     cup = outer.difference(inner, engine="manifold")
-    cup, _ = mp.repair_mesh(cup)
+    cup, _ = repair_mesh(cup)
     assert cup.is_watertight
-    coarse = mp.CoacdParams(threshold=0.2, max_convex_hull=4, resolution=300, mcts_iterations=10, refine_excess=0.0)
+    coarse = CoacdParams(threshold=0.2, max_convex_hull=4, resolution=300, mcts_iterations=10, refine_excess=0.0)
 
     def excess(parts):
         return sum(trimesh.Trimesh(v, f).volume for v, f in parts) / cup.volume - 1
 
-    bridged = excess(mp.convex_decomposition(cup, coarse))
-    refined = excess(mp.convex_decomposition(cup, dataclasses.replace(coarse, refine_excess=0.1)))
+    bridged = excess(convex_decomposition(cup, coarse))
+    refined = excess(convex_decomposition(cup, dataclasses.replace(coarse, refine_excess=0.1)))
     assert bridged > 0.1 and refined < bridged

@@ -9,9 +9,9 @@ import trimesh
 from graspgen.geometry.contacts import closing_contacts
 from graspgen.quality.epsilon import grasp_epsilon, min_closure_friction, pad_contacts
 from graspgen.quality.wrench import ferrari_canny, force_closure
-from graspgen.sim.grippers import get_gripper
+from graspgen.sim.grippers import load_gripper
 
-GRIPPER = get_gripper("robotiq_2f85")
+GRIPPER = load_gripper("robotiq_2f85")
 BOX = trimesh.creation.box((0.05, 0.07, 0.12))
 
 

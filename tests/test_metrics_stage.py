@@ -27,14 +27,15 @@ from graspgen.quality.epsilon import (
     world_to_object,
 )
 from graspgen.quality.wrench import ferrari_canny_from_wrenches, grasp_matrix
-from graspgen.sim.grippers import get_gripper
-from graspgen_cli.app import PROJECT
+from graspgen.sim.grippers import load_gripper
 from pipeline.config import load_config
 from pipeline.errors import ConfigError
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import committed, run_pipeline
+from pipeline.store import stage_dir
+from stages.project import PROJECT
 
-GRIPPER = get_gripper("robotiq_2f85")
+GRIPPER = load_gripper("robotiq_2f85")
 
 
 @pytest.fixture(autouse=True)
@@ -145,12 +146,12 @@ def small(out: Path, cache: Path, *sets: str):
 
 
 def tables(out: Path, stage: str) -> dict:
-    return {e.task: pq.read_table(out / stage / e.file) for e in committed(out, stage).values()}
+    return {e.task: pq.read_table(stage_dir(out, stage) / e.file) for e in committed(out, stage).values()}
 
 
 def shard(out: Path, stage: str, task: str) -> Path:
     (entry,) = [e for e in committed(out, stage).values() if e.task == task]
-    return out / stage / entry.file
+    return stage_dir(out, stage) / entry.file
 
 
 @pytest.fixture(scope="module")

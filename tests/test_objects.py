@@ -12,11 +12,12 @@ import pytest
 import trimesh
 
 from graspgen.io.objects import read_object
-from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.errors import ConfigError
 from pipeline.scheduler import committed, run_pipeline
+from pipeline.store import stage_dir
 from stages.objects import ObjectsParams, catalog, discover
+from stages.project import PROJECT
 
 CHEAP = [
     "objects.coacd.threshold=0.2",
@@ -101,7 +102,7 @@ def test_broken_files_are_named_and_the_good_ones_processed(broken_folder, tmp_p
 
 def _shard(out: Path, name: str) -> Path:
     (entry,) = [e for e in committed(out, "objects").values() if e.task == name]
-    return out / "objects" / entry.file
+    return stage_dir(out, "objects") / entry.file
 
 
 def test_config_typo_fails_fast_naming_the_key(tmp_path):

@@ -7,10 +7,11 @@ import pyarrow.parquet as pq
 import pytest
 
 from graspgen.io.arrow import column_array
-from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import committed, run_pipeline
+from pipeline.store import stage_dir
+from stages.project import PROJECT
 
 
 def smoke(out, cache, *sets):
@@ -20,7 +21,7 @@ def smoke(out, cache, *sets):
 
 
 def tables(out, stage):
-    return {e.task: pq.read_table(out / stage / e.file) for e in committed(out, stage).values()}
+    return {e.task: pq.read_table(stage_dir(out, stage) / e.file) for e in committed(out, stage).values()}
 
 
 @pytest.fixture(scope="module")

@@ -20,9 +20,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from graspgen.io.reader import Grasp, open_dataset
-from graspgen_cli.app import PROJECT
 from pipeline.config import load_config
 from pipeline.scheduler import run_pipeline
+from stages.project import PROJECT
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -218,7 +218,7 @@ def test_backprojecting_a_plane_gives_points_on_that_plane():
 def test_camera_validation():
     with pytest.raises(ValueError, match="K: must be"):
         Camera(np.eye(3) * 0, np.eye(4), 10, 10)
-    with pytest.raises(ValueError, match="T_world_camera: the upper-left 3x3 block must be a rotation"):
+    with pytest.raises(ValueError, match="T_world_camera: the rotation block is not a proper rotation"):
         Camera(np.eye(3), np.diag([1, 1, -1, 1.0]), 10, 10)
 
 

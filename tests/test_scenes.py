@@ -29,12 +29,13 @@ from graspgen.sim.scene_model import (
 )
 from graspgen.sim.scenes import ScenesParams, choose_objects, make_scene, scene_spec
 from graspgen.viz.scenes import colorize_depth, contact_sheet
-from graspgen_cli.app import PROJECT, app
+from graspgen_cli.app import app
 from pipeline.config import load_config
 from pipeline.errors import ConfigError, StageError
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import committed, run_pipeline
 from pipeline.stage import Upstream
+from stages.project import PROJECT
 from stages.scenes import ScenesStage
 
 OBJECTS = ["box", "cylinder", "l_bracket", "wedge"]

@@ -11,9 +11,9 @@ from pipeline.config import load_config
 from pipeline.errors import LockError, StageError
 from pipeline.keys import sha256_file
 from pipeline.repro import shard_hashes
-from pipeline.scheduler import run_pipeline, status
+from pipeline.scheduler import DiskFullError, run_pipeline, status
 from pipeline.stage import Task, topological_order
-from pipeline.store import Manifest, RunLock
+from pipeline.store import Manifest, RunLock, stage_dir
 
 
 def config(out, *sets):
@@ -51,8 +51,8 @@ def test_each_task_gets_its_own_rng(tmp_path):
     run_pipeline(TOY, config(tmp_path / "o", "run.jobs=1"))
     hashes = shard_hashes(tmp_path / "o")
     assert len({hashes[f"numbers/{i}"] for i in "abcd"}) == 4
-    entries = Manifest(tmp_path / "o" / "numbers").entries().values()
-    draws = [read_json(tmp_path / "o" / "numbers" / e.file)["x"] for e in entries]
+    entries = Manifest(stage_dir(tmp_path / "o", "numbers")).entries().values()
+    draws = [read_json(stage_dir(tmp_path / "o", "numbers") / e.file)["x"] for e in entries]
     assert len({tuple(d) for d in draws}) == 4
 
 
@@ -63,7 +63,7 @@ def test_costly_tasks_start_first_and_cost_stays_out_of_the_key(tmp_path):
     from pipeline.stage import Upstream
 
     run_pipeline(TOY, config(tmp_path / "o", "run.jobs=1", "numbers.ids=[a, ccc, bb, dddd, e]"))
-    lines = (tmp_path / "o" / "numbers" / "manifest.jsonl").read_text().splitlines()
+    lines = (stage_dir(tmp_path / "o", "numbers") / "manifest.jsonl").read_text().splitlines()
     assert [json.loads(line)["task"] for line in lines] == ["dddd", "ccc", "bb", "a", "e"]
 
     stage = next(s for s in TOY.stages if s.name == "numbers")
@@ -86,7 +86,7 @@ def test_changed_param_reruns_that_stage_and_downstream_only(tmp_path):
 def test_going_back_to_old_params_reuses_old_shards(tmp_path):
     out = tmp_path / "o"
     run_pipeline(TOY, config(out, "run.jobs=1"))
-    before = json.loads((out / "sums" / "manifest.jsonl").read_text().splitlines()[0])
+    before = json.loads((stage_dir(out, "sums") / "manifest.jsonl").read_text().splitlines()[0])
     run_pipeline(TOY, config(out, "run.jobs=1", "numbers.size=7"))
     reports = by_stage(run_pipeline(TOY, config(out, "run.jobs=1")))
     assert reports["numbers"].ran == 0 and reports["sums"].ran == 0
@@ -123,7 +123,7 @@ def test_shard_without_manifest_entry_does_not_exist(tmp_path):
     out = tmp_path / "o"
     cfg = config(out, "run.jobs=1")
     run_pipeline(TOY, cfg)
-    manifest = out / "numbers" / "manifest.jsonl"
+    manifest = stage_dir(out, "numbers") / "manifest.jsonl"
     lines = manifest.read_text().splitlines()
     # As if killed after writing the last shard but before committing it, mid-way through the line.
     manifest.write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:40])
@@ -135,8 +135,8 @@ def test_damaged_shard_is_redone(tmp_path):
     out = tmp_path / "o"
     cfg = config(out, "run.jobs=1")
     run_pipeline(TOY, cfg)
-    entry = next(iter(Manifest(out / "numbers").entries().values()))
-    path = out / "numbers" / entry.file
+    entry = next(iter(Manifest(stage_dir(out, "numbers")).entries().values()))
+    path = stage_dir(out, "numbers") / entry.file
     path.write_bytes(path.read_bytes()[:-1] + b"\x00")
     assert by_stage(run_pipeline(TOY, cfg))["numbers"].ran == 1
     assert sha256_file(path) == entry.sha256
@@ -181,8 +181,8 @@ def test_ray_backend_gives_the_same_bytes(tmp_path):
 def test_publish_runs_after_the_stage_with_its_current_shards(tmp_path):
     out = tmp_path / "o"
     run_pipeline(TOY, config(out, "run.jobs=1", "sums.scale=2"))
-    (entry,) = Manifest(out / "sums").entries().values()
-    total = float(read_json(out / "sums" / entry.file)["total"])
+    (entry,) = Manifest(stage_dir(out, "sums")).entries().values()
+    total = float(read_json(stage_dir(out, "sums") / entry.file)["total"])
     assert (out / "published" / "total.txt").read_text() == f"{total!r} from 4 shards\n"
     run_pipeline(TOY, config(out, "run.jobs=1", "sums.scale=3"))
     assert (out / "published" / "total.txt").read_text() == f"{total / 2 * 3!r} from 4 shards\n"
@@ -264,3 +264,20 @@ def test_independent_stages_share_a_wave_and_give_the_same_bytes(tmp_path):
     run_pipeline(project, config(tmp_path / "s", "run.jobs=1"), targets=["sums"])
     run_pipeline(project, config(tmp_path / "s", "run.jobs=1"), targets=["squares"])
     assert shard_hashes(tmp_path / "w") == shard_hashes(tmp_path / "s")
+
+
+def test_a_full_disk_stops_the_run_and_a_resume_after_freeing_space_gives_the_same_bytes(tmp_path):
+    full = tmp_path / "disk_is_full"
+    full.touch()
+    cfg = config(tmp_path / "o", "run.jobs=1", f"numbers.disk_full_while={full}")
+    with pytest.raises(DiskFullError, match=r"numbers/\w+: No space left on device while writing .*run the same"):
+        run_pipeline(TOY, cfg)
+    numbers = stage_dir(tmp_path / "o", "numbers")
+    assert not [p for p in numbers.rglob("*") if p.is_file() and p.name != "manifest.jsonl"]  # no partial shard
+    assert Manifest(numbers).entries() == {}  # nothing remembered as failed
+    full.unlink()  # space freed
+    reports = by_stage(run_pipeline(TOY, cfg))
+    assert reports["numbers"].ran == 4 and reports["numbers"].failed == 0
+    reference = tmp_path / "ref"
+    run_pipeline(TOY, config(reference, "run.jobs=1", f"numbers.disk_full_while={full}"))
+    assert shard_hashes(tmp_path / "o") == shard_hashes(reference)

@@ -16,9 +16,10 @@ from graspgen.io.objects import read_object
 from graspgen.sim.rollouts import scene_simulator
 from graspgen.sim.scene_model import object_body_name
 from graspgen.viz.rollout_movie import Frame, pick_frames, record_rollout, side_cameras
-from graspgen_cli.app import PROJECT, app, find_shard
+from graspgen_cli.app import app, find_shard
 from pipeline.config import load_config
 from pipeline.scheduler import run_pipeline
+from stages.project import PROJECT
 
 SMOKE = Path(__file__).resolve().parents[1] / "configs" / "smoke.yaml"
 runner = CliRunner()

@@ -9,7 +9,7 @@ import signal
 import pytest
 
 from pipeline.errors import LockError
-from pipeline.store import Entry, Manifest, RunLock, atomic_path
+from pipeline.store import Entry, Manifest, RunLock, atomic_path, remove_stray_temps
 
 
 def test_atomic_path_leaves_nothing_on_error(tmp_path):
@@ -56,3 +56,26 @@ def test_lock_is_released_when_its_holder_is_killed(tmp_path):
     proc.join()
     with RunLock(tmp_path):
         pass
+
+
+@pytest.mark.parametrize(("umask", "mode"), [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_atomic_files_honour_the_umask(tmp_path, umask, mode):
+    old = os.umask(umask)
+    try:
+        with atomic_path(tmp_path / "shard.h5") as tmp:
+            tmp.write_text("x")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "shard.h5").stat().st_mode & 0o777 == mode
+
+
+def test_stray_temp_files_of_a_killed_write_are_removed(tmp_path):
+    stage = tmp_path / "shards" / "objects" / "ab"
+    stage.mkdir(parents=True)
+    stray = stage / ".abc.h5.k2j3.tmp"
+    stray.write_bytes(b"")  # what a write killed before its os.replace leaves
+    keep = [stage / "abc.h5", tmp_path / "notes.tmp"]  # a shard; a user's file that is not ours
+    for path in keep:
+        path.write_text("x")
+    assert remove_stray_temps(tmp_path) == [stray]
+    assert not stray.exists() and all(p.exists() for p in keep)

@@ -7,7 +7,9 @@ their sum. A task whose id starts with ``bad`` raises, to exercise failure handl
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
+import os
 import time
 from pathlib import Path
 
@@ -39,6 +41,8 @@ class NumbersParams:
     """Seconds each task sleeps (to give a killer time)."""
     input_file: str | None = None
     """Optional raw input whose bytes enter every key."""
+    disk_full_while: str | None = None
+    """While this file exists, writing a shard fails as on a full disk (ENOSPC), after a partial write."""
 
     def __post_init__(self) -> None:
         if self.size <= 0:
@@ -72,6 +76,9 @@ class NumbersStage(Stage):
         if task.id.startswith("bad"):
             raise InputError(f"{task.id}: this input is broken on purpose")
         time.sleep(params.sleep)
+        if params.disk_full_while and Path(params.disk_full_while).exists():
+            out.write_text('{"x": [0.1, ')  # what got onto the disk before it filled up
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         write_json(out, {"x": rng.normal(size=params.size).tolist(), "id": task.id})
         return {"n": params.size}
 

@@ -1,6 +1,6 @@
 """Antipodal grasp candidates on a triangle mesh: pure geometry (numpy + trimesh rays), usable from a notebook.
 
-Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
+Algorithm (ARCHITECTURE.md, One grasp's path, step 3), one call of :func:`sample_antipodal`:
 
 1. **Surface points.** ``num_surface_points`` points uniformly by area on the mesh: a face is drawn with
    probability proportional to its area, then a uniform barycentric point in it (both from ``rng``; trimesh's own
@@ -26,9 +26,9 @@ Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
      is still graspable in an 85 mm gripper although 70 mm + ``width_margin`` exceeds the stroke.
 
 5. **Orientations.** The TCP frame has ``x = (p2 - p1) / width`` (``p1`` is the *left* pad's contact, on -x;
-   ``p2`` the *right* pad's, on +x: :mod:`graspgen.sim.grippers`). ``num_orientations`` approach axes ``z`` perpendicular
-   to ``x`` are evenly spaced about ``x``, starting at a random phase (one per ray, from ``rng``); ``y = z x x``, so
-   ``[x y z]`` is a proper rotation.
+   ``p2`` the *right* pad's, on +x: :mod:`graspgen.sim.grippers`). ``num_orientations`` approach axes ``z``
+   perpendicular to ``x`` are evenly spaced about ``x``, starting at a random phase (one per ray, from ``rng``);
+   ``y = z x x``, so ``[x y z]`` is a proper rotation.
 6. **Approach filter** on the world-frame approach axis ``z_w = R_object z`` (``object_pose`` places the object):
    the approach angle is the angle between ``z_w`` and straight down ``(0, 0, -1)``, in ``[0, pi]``.
 
@@ -40,12 +40,12 @@ Algorithm (DESIGN section 5.3), one call of :func:`sample_antipodal`:
 
 7. **Grasp depths.** Each kept orientation gives ``num_depths`` candidates that differ only in how far the TCP sits
    behind the contact line: ``origin = (p1 + p2) / 2 - d z`` for ``d`` in :func:`grasp_depths` (evenly spaced from
-   0 to ``pad_length / 2 - depth_margin``). The TCP is the pads' centre (DESIGN section 4), so in the TCP frame the
-   contacts lie at ``(-+width / 2, 0, d)``: on the pad faces, ``d`` towards the finger tips, and the tips reach only
-   ``pad_length / 2 - d`` past the contacts. Why: with ``d = 0`` the 2F-85's pads (37.5 mm) reach ~19 mm past the
-   contacts along the approach, so on low objects (a lying box, a 35 mm wedge) most downward grasps put the finger
-   tips into the table; a TCP set further back keeps them above it, as real planners vary the grasp depth. Depths
-   are deterministic (no random draws): ``num_depths = 1`` reproduces the contact-centred TCP exactly.
+   0 to ``pad_length / 2 - depth_margin``). The TCP is the pads' centre (ARCHITECTURE.md, Conventions), so in the TCP
+   frame the contacts lie at ``(-+width / 2, 0, d)``: on the pad faces, ``d`` towards the finger tips, and the tips
+   reach only ``pad_length / 2 - d`` past the contacts. Why: with ``d = 0`` the 2F-85's pads (37.5 mm) reach ~19 mm past
+   the contacts along the approach, so on low objects (a lying box, a 35 mm wedge) most downward grasps put the finger
+   tips into the table; a TCP set further back keeps them above it, as real planners vary the grasp depth. Depths are
+   deterministic (no random draws): ``num_depths = 1`` reproduces the contact-centred TCP exactly.
 
 Every kept candidate satisfies: both contacts on the surface, ``max(min_width, surface_offset) <= width <=
 max_width - min_clearance``, the contact line inside both friction cones, and both contacts on the pad faces
@@ -66,6 +66,15 @@ import numpy as np
 import trimesh
 
 from graspgen.sim.grippers import GripperSpec
+from graspgen.validation import (
+    check,
+    check_choice,
+    check_instance,
+    check_number,
+    check_positive_int,
+    check_rng,
+    check_transform,
+)
 
 __all__ = [
     "APPROACH_MODES",
@@ -80,55 +89,10 @@ __all__ = [
 APPROACH_MODES = ("above", "hemisphere", "any")
 """Accepted values of :attr:`AntipodalParams.approach`."""
 
-# ---------------------------------------------------------------------------------------------------------------
-# Argument checks (programmer errors -> ValueError naming the argument)
-# ---------------------------------------------------------------------------------------------------------------
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
-
-
-def _check_positive_int(name: str, value: object) -> None:
-    if not _is_int(value) or value < 1:
-        raise ValueError(f"{name}: must be a positive integer, got {value!r}")
-
-
-def _check_number(name: str, value: object, *, low: float | None = None, high: float | None = None,
-                  low_open: bool = False, high_open: bool = False) -> None:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name}: must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name}: must be finite, got {value!r}")
-    too_low = low is not None and (value <= low if low_open else value < low)
-    too_high = high is not None and (value >= high if high_open else value > high)
-    if too_low or too_high:
-        left, right = ("(" if low_open else "["), (")" if high_open else "]")
-        low_text = "-inf" if low is None else f"{low:g}"
-        high_text = "inf" if high is None else f"{high:g}"
-        raise ValueError(f"{name}: must be in {left}{low_text}, {high_text}{right}, got {value!r}")
-
 
 def _check_mesh(mesh: object) -> None:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise ValueError(f"mesh: must be a trimesh.Trimesh, got {type(mesh).__name__}")
-    if len(mesh.faces) == 0 or not float(mesh.area) > 0:
-        raise ValueError("mesh: has no faces of positive area")
-
-
-def _check_rng(rng: object) -> None:
-    if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng: must be a numpy.random.Generator, got {type(rng).__name__}")
-
-
-def _check_object_pose(pose: object) -> np.ndarray:
-    T = np.asarray(pose, dtype=float)
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise ValueError(f"object_pose: must be a finite 4x4 transform, got shape {T.shape}")
-    R = T[:3, :3]
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) <= 0 or np.any(T[3] != (0.0, 0.0, 0.0, 1.0)):
-        raise ValueError("object_pose: must be a rigid transform (proper rotation, last row 0 0 0 1)")
-    return T
+    check_instance("mesh", mesh, trimesh.Trimesh, what="trimesh.Trimesh")
+    check("mesh", len(mesh.faces) > 0 and float(mesh.area) > 0, "have faces of positive area", mesh)
 
 
 def uses_embree(mesh: trimesh.Trimesh) -> bool:
@@ -183,19 +147,18 @@ class AntipodalParams:
     depth, 92-95 % at 14 mm (5 mm margin) and 89-92 % with the contacts on the pad tips (0 margin)."""
 
     def __post_init__(self) -> None:
-        _check_positive_int("num_surface_points", self.num_surface_points)
-        _check_positive_int("rays_per_point", self.rays_per_point)
-        _check_number("friction", self.friction, low=0.0, low_open=True)
-        _check_positive_int("num_orientations", self.num_orientations)
-        if self.approach not in APPROACH_MODES:
-            raise ValueError(f"approach: must be one of {', '.join(APPROACH_MODES)}, got {self.approach!r}")
-        _check_number("max_approach_angle", self.max_approach_angle, low=0.0, high=math.pi / 2, low_open=True,
-                      high_open=True)
-        _check_number("width_margin", self.width_margin, low=0.0)
-        _check_number("min_clearance", self.min_clearance, low=0.0, high=self.width_margin)
-        _check_number("surface_offset", self.surface_offset, low=0.0, low_open=True)
-        _check_positive_int("num_depths", self.num_depths)
-        _check_number("depth_margin", self.depth_margin, low=0.0)
+        check_positive_int("num_surface_points", self.num_surface_points)
+        check_positive_int("rays_per_point", self.rays_per_point)
+        check_number("friction", self.friction, low=0.0, low_open=True)
+        check_positive_int("num_orientations", self.num_orientations)
+        check_choice("approach", self.approach, APPROACH_MODES)
+        check_number("max_approach_angle", self.max_approach_angle, low=0.0, high=math.pi / 2, low_open=True,
+                     high_open=True)
+        check_number("width_margin", self.width_margin, low=0.0)
+        check_number("min_clearance", self.min_clearance, low=0.0, high=self.width_margin)
+        check_number("surface_offset", self.surface_offset, low=0.0, low_open=True)
+        check_positive_int("num_depths", self.num_depths)
+        check_number("depth_margin", self.depth_margin, low=0.0)
 
     @property
     def cone_half_angle(self) -> float:
@@ -365,8 +328,8 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     ----------
     mesh
         The object's surface in its OBJECT frame (m), watertight with outward normals (as
-        :func:`graspgen.geometry.mesh_prep.repair_mesh` leaves it). Its ray intersector is cached on the mesh, so reuse one
-        mesh object across calls.
+        :func:`graspgen.geometry.repair.repair_mesh` leaves it). Its ray intersector is cached on the mesh, so
+        reuse one mesh object across calls.
     gripper
         Gives the opening range ``[min_width, max_width]``.
     params
@@ -391,12 +354,10 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
         ``params.depth_margin`` no depth range on its pads.
     """
     _check_mesh(mesh)
-    if not isinstance(gripper, GripperSpec):
-        raise ValueError(f"gripper: must be a GripperSpec, got {type(gripper).__name__}")
-    if not isinstance(params, AntipodalParams):
-        raise ValueError(f"params: must be an AntipodalParams, got {type(params).__name__}")
-    _check_rng(rng)
-    T_world = np.eye(4) if object_pose is None else _check_object_pose(object_pose)
+    check_instance("gripper", gripper, GripperSpec)
+    check_instance("params", params, AntipodalParams)
+    check_rng("rng", rng)
+    T_world = np.eye(4) if object_pose is None else check_transform("object_pose", object_pose)
     min_width = max(gripper.min_width, params.surface_offset)
     max_width = gripper.max_width - params.min_clearance
     if max_width < min_width:

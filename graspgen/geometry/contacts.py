@@ -17,6 +17,7 @@ import numpy as np
 import trimesh
 
 from graspgen.sim.grippers import GripperSpec
+from graspgen.validation import check_positive_int, check_transforms
 
 LEFT, RIGHT = 0, 1
 """Finger labels: the left pad sits on -x of the TCP frame and closes along +x; the right pad the reverse."""
@@ -41,15 +42,6 @@ class ClosingContacts:
         return bool(np.isin([LEFT, RIGHT], self.finger).all())
 
 
-def _check_poses(T_tcp: np.ndarray) -> np.ndarray:
-    T = np.asarray(T_tcp, dtype=np.float64)
-    if T.ndim == 2:
-        T = T[None]
-    if T.ndim != 3 or T.shape[1:] != (4, 4):
-        raise ValueError(f"T_tcp: must be (4, 4) or (n, 4, 4), got shape {np.shape(T_tcp)}")
-    return T
-
-
 def pad_ray_grid(gripper: GripperSpec, rays_per_side: int) -> tuple[np.ndarray, np.ndarray]:
     """Ray origins on both open pad faces and their closing directions, in the TCP frame.
 
@@ -61,8 +53,7 @@ def pad_ray_grid(gripper: GripperSpec, rays_per_side: int) -> tuple[np.ndarray, 
     directions : (2 * r * r, 3) float
         +x for the left pad, -x for the right pad.
     """
-    if rays_per_side < 1:
-        raise ValueError(f"rays_per_side: must be >= 1, got {rays_per_side}")
+    check_positive_int("rays_per_side", rays_per_side)
     _, pad_w, pad_l = gripper.pad_size
     frac = np.linspace(-0.45, 0.45, rays_per_side) if rays_per_side > 1 else np.zeros(1)
     yy, zz = np.meshgrid(frac * pad_w, frac * pad_l, indexing="ij")
@@ -103,7 +94,7 @@ def closing_contacts(
     list of ClosingContacts, one per grasp. A ray whose first hit is a back face started inside the object (the
     open pad is already in the object); such rays are ignored.
     """
-    T = _check_poses(T_tcp)
+    T = check_transforms("T_tcp", T_tcp, allow_single=True)
     origins_tcp, dirs_tcp = pad_ray_grid(gripper, rays_per_side)
     m = len(origins_tcp)
     origins = np.einsum("nij,kj->nki", T[:, :3, :3], origins_tcp) + T[:, None, :3, 3]

@@ -1,6 +1,6 @@
 """Read and write grasp files in the ACRONYM format (Eppner et al., 2021; ``NVlabs/acronym``).
 
-An ACRONYM grasp file is one HDF5 file per object (DESIGN sections 4 and 8)::
+An ACRONYM grasp file is one HDF5 file per object (ARCHITECTURE.md, Conventions)::
 
     grasps/transforms                          (n, 4, 4) float   hand-base poses in the object's mesh frame, m
     grasps/qualities/flex/object_in_gripper    (n,)      int     1 = the object stayed in the gripper (success)
@@ -19,12 +19,14 @@ differs: our TCP (midway between the pads) sits ``tcp_offset`` along the base's 
 :func:`tcp_from_hand_base` and :func:`hand_base_from_tcp` convert; the offset comes from the gripper the file names
 in ``gripper/type`` (``franka_panda`` is our ``panda``), so ``read_acronym(p).tcp_poses()`` gives TCP poses whatever
 gripper wrote the file. Strings are stored the way ACRONYM's own files store them (variable-length UTF-8 scalars)
-and read back whether they come as ``bytes`` or ``str``.
+and read back whether they come as ``bytes`` or ``str``. :func:`export_acronym` writes the grasps of a published
+dataset folder as one such file per object.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -32,9 +34,14 @@ from typing import Any
 
 import h5py
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 
-from graspgen.errors import InputError
-from graspgen.sim.grippers import get_gripper
+from graspgen.errors import InputError, SettingsError
+from graspgen.io.atomic import atomic_path, write_text_atomic
+from graspgen.io.dataset_table import float_values
+from graspgen.sim.grippers import load_gripper
+from graspgen.validation import check_number, check_transforms
 
 __all__ = [
     "SUCCESS_KEY",
@@ -45,6 +52,7 @@ __all__ = [
     "gripper_name",
     "read_acronym",
     "write_acronym",
+    "export_acronym",
 ]
 
 SUCCESS_KEY = "flex/object_in_gripper"
@@ -59,22 +67,9 @@ _FILE_NAMES = {v: k for k, v in GRIPPER_ALIASES.items()}
 
 def _offset(tcp_offset: float) -> np.ndarray:
     """(4, 4) translation by ``tcp_offset`` (m) along z."""
-    if isinstance(tcp_offset, bool) or not isinstance(tcp_offset, (int, float, np.floating)):
-        raise ValueError(f"tcp_offset: expected a number (m), got {tcp_offset!r}")
-    if not math.isfinite(tcp_offset):
-        raise ValueError(f"tcp_offset: expected a finite number (m), got {tcp_offset!r}")
     T = np.eye(4)
-    T[2, 3] = float(tcp_offset)
+    T[2, 3] = check_number("tcp_offset", tcp_offset)
     return T
-
-
-def _check_transforms(T: Any, name: str) -> np.ndarray:
-    arr = np.asarray(T, dtype=np.float64)
-    if arr.ndim == 2:
-        arr = arr[None]
-    if arr.ndim != 3 or arr.shape[1:] != (4, 4):
-        raise ValueError(f"{name}: expected (n, 4, 4) transforms, got shape {np.shape(T)}")
-    return arr
 
 
 def tcp_from_hand_base(T_base: Any, tcp_offset: float) -> np.ndarray:
@@ -93,7 +88,7 @@ def tcp_from_hand_base(T_base: Any, tcp_offset: float) -> np.ndarray:
     -------
     (n, 4, 4) float64
     """
-    return _check_transforms(T_base, "T_base") @ _offset(tcp_offset)
+    return check_transforms("T_base", T_base, allow_single=True) @ _offset(tcp_offset)
 
 
 def hand_base_from_tcp(T_tcp: Any, tcp_offset: float) -> np.ndarray:
@@ -103,7 +98,7 @@ def hand_base_from_tcp(T_tcp: Any, tcp_offset: float) -> np.ndarray:
     -------
     (n, 4, 4) float64
     """
-    return _check_transforms(T_tcp, "T_tcp") @ _offset(-float(tcp_offset))
+    return check_transforms("T_tcp", T_tcp, allow_single=True) @ _offset(-float(tcp_offset))
 
 
 def gripper_name(file_type: str) -> str:
@@ -115,7 +110,7 @@ def gripper_name(file_type: str) -> str:
         Unknown gripper; the message lists the registered ones.
     """
     name = GRIPPER_ALIASES.get(file_type, file_type)
-    get_gripper(name)  # SettingsError listing the choices when unknown
+    load_gripper(name)  # SettingsError listing the choices when unknown
     return name
 
 
@@ -151,7 +146,7 @@ class AcronymGrasps:
     """File it was read from (empty when built in memory)."""
 
     def __post_init__(self) -> None:
-        T = _check_transforms(self.transforms, "transforms")
+        T = check_transforms("transforms", self.transforms, allow_single=True)
         object.__setattr__(self, "transforms", T)
         n = len(T)
         if self.success is not None:
@@ -175,7 +170,7 @@ class AcronymGrasps:
         """(n, 4, 4) TCP poses in the object frame: :func:`tcp_from_hand_base` with the file's gripper's
         ``tcp_offset`` (or the one given, m)."""
         if tcp_offset is None:
-            tcp_offset = get_gripper(self.gripper).tcp_offset
+            tcp_offset = load_gripper(self.gripper).tcp_offset
         return tcp_from_hand_base(self.transforms, tcp_offset)
 
 
@@ -239,6 +234,10 @@ def read_acronym(path: str | Path) -> AcronymGrasps:
         T = np.asarray(f["grasps/transforms"][()], dtype=np.float64)
         if T.ndim != 3 or T.shape[1:] != (4, 4) or not np.isfinite(T).all():
             raise InputError(f"{path}: grasps/transforms must be finite (n, 4, 4) transforms, got shape {T.shape}")
+        try:
+            check_transforms("grasps/transforms", T)
+        except SettingsError as exc:
+            raise InputError(f"{path}: {exc}") from None
         qualities = _qualities(f["grasps/qualities"]) if "grasps/qualities" in f else {}
         for key, value in qualities.items():
             if value.shape[:1] != (len(T),):
@@ -311,7 +310,7 @@ def write_acronym(
     qualities : mapping, optional
         Further per-grasp columns ``{"name/sub": (n,) array}`` written below ``grasps/qualities``.
     """
-    spec = get_gripper(gripper)
+    spec = load_gripper(gripper)
     T_base = hand_base_from_tcp(T_tcp, spec.tcp_offset)
     n = len(T_base)
     labels = np.asarray(success).reshape(-1)
@@ -323,8 +322,7 @@ def write_acronym(
             raise ValueError(f"qualities: {SUCCESS_KEY!r} is written from `success`; do not pass it twice")
         if value.shape[:1] != (n,):
             raise ValueError(f"qualities[{key!r}]: expected {n} values, got shape {value.shape}")
-    if not (object_scale > 0 and math.isfinite(object_scale)):
-        raise ValueError(f"object_scale: must be > 0, got {object_scale!r}")
+    check_number("object_scale", object_scale, low=0.0, low_open=True)
     config = (np.array([spec.max_width / 2.0]) if gripper_configuration is None
               else np.asarray(gripper_configuration, dtype=np.float64).reshape(-1))
     text = h5py.string_dtype("utf-8")
@@ -343,3 +341,72 @@ def write_acronym(
         f.create_dataset("gripper/type", data=_FILE_NAMES.get(spec.name, spec.name), dtype=text)
         f.create_dataset("gripper/configuration", data=config)
 
+
+def export_acronym(root: Path) -> list[str]:
+    """Each object's grasps of ``root/grasps.parquet`` as ``acronym/<object>.h5`` (+ ``acronym/meshes/<object>.obj``).
+
+    Poses are the TCP poses in the object's mesh frame (``pose_object``), written as hand-base poses
+    (:func:`write_acronym`); success is outcome 5. Further qualities under ``grasps/qualities/
+    graspgen/``: outcome, width, and the labels present (robustness, pfc, epsilon; NaN where missing). Rows are in
+    grasps.parquet order (by scene, then grasp id); ``graspgen/grasp_id`` and the order give the way back.
+
+    Returns
+    -------
+    list of str
+        The written files, relative to ``root``.
+    """
+    wanted = ["object_name", "gripper", "pose_object", "outcome", "width", "grasp_id"]
+    schema = pq.read_schema(root / "grasps.parquet")
+    labels = [c for c in ("robustness", "pfc", "epsilon") if c in schema.names]
+    table = pq.read_table(root / "grasps.parquet", columns=wanted + labels)
+    names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
+    written = []
+    for name in sorted(set(names)):
+        rows = np.flatnonzero(names == name)
+        part = table.take(pa.array(rows))
+        grippers = sorted(set(part.column("gripper").to_pylist()))
+        if len(grippers) != 1:
+            raise InputError(f"acronym export: object {name!r} has grasps of several grippers: {grippers}")
+        obj = root / "objects" / f"{name}.h5"
+        with h5py.File(obj, "r") as f:
+            vertices, faces = f["mesh/vertices"][()], f["mesh/faces"][()]
+            com, inertia = f["mass/center_of_mass"][()], f["mass/inertia"][()]
+            mass, density = float(f.attrs["mass"]), float(f.attrs["density"])
+        mesh_rel = f"acronym/meshes/{name}.obj"
+        write_text_atomic(root / mesh_rel, _obj_text(vertices, faces))
+        qualities = {
+            "graspgen/outcome": part.column("outcome").to_numpy().astype(np.int8),
+            "graspgen/width": part.column("width").to_numpy(),
+            "graspgen/grasp_id": part.column("grasp_id").to_numpy().astype(np.int32),
+        }
+        for label in labels:
+            qualities[f"graspgen/{label}"] = float_values(part.column(label))
+        T = np.asarray(part.column("pose_object").combine_chunks().values, dtype=np.float64).reshape(-1, 4, 4)
+        rel = f"acronym/{name}.h5"
+        with atomic_path(root / rel) as tmp:
+            write_acronym(
+                tmp,
+                T,
+                part.column("outcome").to_numpy() == 5,
+                object_file=f"meshes/{name}.obj",
+                object_scale=1.0,
+                gripper=grippers[0],
+                object_mass=mass,
+                object_com=com,
+                object_inertia=inertia,
+                object_density=density,
+                qualities=qualities,
+            )
+        written += [mesh_rel, rel]
+    return written
+
+
+def _obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """Wavefront OBJ of a triangle mesh (shortest round-trip floats: deterministic, exact)."""
+    out = io.StringIO()
+    out.write("# graspgen object mesh, metres\n")
+    for x, y, z in np.asarray(vertices, dtype=np.float64).tolist():
+        out.write(f"v {x!r} {y!r} {z!r}\n")
+    for a, b, c in (np.asarray(faces, dtype=np.int64) + 1).tolist():
+        out.write(f"f {a} {b} {c}\n")
+    return out.getvalue()

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from graspgen.geometry.mesh_prep import PreparedObject
+from graspgen.geometry.prepare import PreparedObject
 from graspgen.io.files import read_h5, sha256_file
 
 

@@ -1,4 +1,4 @@
-"""Reading a published dataset (``OUT/dataset``, :mod:`stages.dataset`): :func:`open_dataset`.
+"""Reading a published dataset (``OUT/dataset``, :mod:`graspgen.io.dataset_table`): :func:`open_dataset`.
 
 Lazy: opening reads the Parquet footer and ``card.json`` only; grasps are read with the filter pushed into the
 Parquet reader (row groups hold whole scenes, so a filter on ``scene_id`` touches one group), and a scene's view

@@ -1,8 +1,8 @@
 """Analytic grasp quality: Ferrari-Canny epsilon of a parallel-jaw grasp's contacts, friction labels, and stage 6,
 ``metrics``.
 
-The wrench maths lives in :mod:`graspgen.quality.wrench`; this module turns the contacts a grasp produces (from a rollout
-or from :func:`graspgen.geometry.contacts.closing_contacts`) into the contact model the metric uses.
+The wrench maths lives in :mod:`graspgen.quality.wrench`; this module turns the contacts a grasp produces (from a
+rollout or from :func:`graspgen.geometry.contacts.closing_contacts`) into the contact model the metric uses.
 
 Contact models (``contact_model``):
 
@@ -36,8 +36,8 @@ table it picks one contact set, in the target object's mesh frame:
 * ``none``: neither gives contacts on both pads: epsilon 0, no friction label.
 
 Centre of mass from the object record; ``torque_scale`` = the largest distance of a mesh vertex from it (so epsilon
-is unit-free, DESIGN section 7). Friction: ``epsilon.friction``, or the object's friction in the scene when null
-(the coefficient the simulation used for gripper-object contacts). The GraspNet-style label is the smallest
+is unit-free, ARCHITECTURE.md, Conventions). Friction: ``epsilon.friction``, or the object's friction in the scene when
+null (the coefficient the simulation used for gripper-object contacts). The GraspNet-style label is the smallest
 coefficient of ``closure_frictions`` at which the grasp is in force closure (epsilon > 0).
 
 Output per scene: one Parquet table, one row per grasp of the grasps table, joined on ``(scene_id, grasp_id)``:
@@ -62,7 +62,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import pyarrow as pa
@@ -70,21 +70,18 @@ import trimesh
 
 from graspgen.errors import InputError
 from graspgen.geometry.contacts import ClosingContacts, closing_contacts
-from graspgen.io.arrow import column_array
+from graspgen.io.arrow import column_array, list_rows
 from graspgen.io.objects import ObjectRecord
 from graspgen.io.scenes import SceneRecord
 from graspgen.quality.wrench import (
     _check_center_of_mass,
-    _check_friction,
-    _check_num_cone_edges,
-    _check_torque_scale,
     _epsilon,
     _wrenches,
     ferrari_canny,
     force_closure,
 )
-from graspgen.sim.grippers import GripperSpec, get_gripper
-from graspgen.validation import check
+from graspgen.sim.grippers import GripperSpec, load_gripper
+from graspgen.validation import check, check_choice, check_int, check_number
 
 __all__ = [
     "CONTACT_MODELS",
@@ -130,7 +127,7 @@ def pad_contacts(
     """
     centroids, mean_normals, gammas = [], [], []
     # sorted(set(...)) rather than np.unique: same order, a few microseconds less on these tiny arrays (this runs
-    # once per epsilon evaluation, DESIGN section 9 asks for >= 2,000 per second).
+    # once per epsilon evaluation, ARCHITECTURE.md, Performance bars, asks for >= 2,000 per second).
     for f in sorted(set(np.asarray(finger).tolist())):
         sel = finger == f
         pts = points[sel]
@@ -199,8 +196,7 @@ def grasp_epsilon(
     -------
     float, unit-free: 0 when the contacts are not in force closure (fewer than two pads touching included).
     """
-    if contact_model not in CONTACT_MODELS:
-        raise ValueError(f"contact_model: must be one of {', '.join(CONTACT_MODELS)}, got {contact_model!r}")
+    check_choice("contact_model", contact_model, CONTACT_MODELS)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     finger = np.asarray(finger).reshape(-1)
@@ -221,14 +217,11 @@ def grasp_epsilon(
     if not (np.isfinite(points).all() and np.isfinite(normals).all()):
         raise ValueError("points, normals: contain NaN or infinite values")
     com = _check_center_of_mass(center_of_mass)
-    mu = _check_friction(friction)
-    scale = _check_torque_scale(torque_scale)
-    m = _check_num_cone_edges(num_cone_edges)
-    if not (math.isfinite(torsional_friction) and torsional_friction >= 0.0):
-        raise ValueError(f"torsional_friction: must be finite and >= 0, got {torsional_friction!r}")
-    centroids, mean_normals, gammas = pad_contacts(
-        points, normals, finger, friction=mu, torsional_friction=float(torsional_friction)
-    )
+    mu = check_number("friction", friction, low=0.0, low_open=True)
+    scale = check_number("torque_scale", torque_scale, low=0.0, low_open=True)
+    m = check_int("num_cone_edges", num_cone_edges, low=3)
+    gamma = check_number("torsional_friction", torsional_friction, low=0.0)
+    centroids, mean_normals, gammas = pad_contacts(points, normals, finger, friction=mu, torsional_friction=gamma)
     if len(centroids) < 2:
         return 0.0
     return _epsilon(_pad_wrenches(centroids, mean_normals, gammas, com, mu, scale, m))
@@ -298,8 +291,7 @@ class EpsilonParams:
             check("friction", self.friction > 0 and math.isfinite(self.friction), "be > 0 (or null)", self.friction)
         check("torsional_friction", 0 <= self.torsional_friction < math.inf, "be >= 0", self.torsional_friction)
         check("num_cone_edges", self.num_cone_edges >= 3, "be >= 3", self.num_cone_edges)
-        check("contact_model", self.contact_model in CONTACT_MODELS, f"be one of {', '.join(CONTACT_MODELS)}",
-              self.contact_model)
+        check_choice("contact_model", self.contact_model, CONTACT_MODELS)
         check("rays_per_side", self.rays_per_side >= 1, "be >= 1", self.rays_per_side)
         check("ray_tolerance", 0 <= self.ray_tolerance < math.inf, "be >= 0", self.ray_tolerance)
 
@@ -402,15 +394,6 @@ SCHEMA = pa.schema(
 """The metrics table's schema (see the module docstring)."""
 
 
-def _listed(table: pa.Table, name: str, width: int, dtype: Any) -> list[np.ndarray]:
-    """A list column as one ``(k, width)`` (or ``(k,)`` for width 0) array per row."""
-    col = table.column(name).combine_chunks()
-    offsets = np.asarray(col.offsets, dtype=np.int64)
-    values = np.asarray(col.values.to_numpy(zero_copy_only=False), dtype=dtype)
-    rows = [values[offsets[i] : offsets[i + 1]] for i in range(len(table))]
-    return [r.reshape(-1, width) for r in rows] if width else rows
-
-
 def check_joined(grasps: pa.Table, other: pa.Table, stage: str) -> None:
     """Raise InputError unless ``other`` has one row per grasp of ``grasps``, in the same order."""
     if other.column("grasp_id").to_pylist() != grasps.column("grasp_id").to_pylist():
@@ -457,14 +440,14 @@ def scene_metrics(
     if n == 0:
         return SCHEMA.empty_table()
     ep = params.epsilon
-    gripper = get_gripper(grasps.column("gripper")[0].as_py())
+    gripper = load_gripper(grasps.column("gripper")[0].as_py())
     names = grasps.column("object_name").to_pylist()
     index = grasps.column("object_index").to_numpy()
     geometries = {name: object_geometry(records[name]) for name in sorted(set(names))}
     simulated = rollouts.column("simulated").to_numpy(zero_copy_only=False)
-    points = _listed(rollouts, "contact_points", 3, np.float64)
-    normals = _listed(rollouts, "contact_normals", 3, np.float64)
-    fingers = _listed(rollouts, "contact_fingers", 0, np.int8)
+    points = list_rows(rollouts, "contact_points", 3, np.float64)
+    normals = list_rows(rollouts, "contact_normals", 3, np.float64)
+    fingers = list_rows(rollouts, "contact_fingers", 0, np.int8)
     has_rollout = [bool(simulated[i]) and bool(np.isin((0, 1), fingers[i]).all()) for i in range(n)]
     rays = raycast_contacts(grasps, [i for i in range(n) if not has_rollout[i]], geometries, gripper, ep)
     cols: dict[str, list] = {name: [] for name in SCHEMA.names[2:]}

@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from typing import Any
 
 import mujoco
@@ -62,7 +61,7 @@ import numpy as np
 import pyarrow as pa
 
 from graspgen.geometry.contacts import closing_contacts
-from graspgen.io.arrow import column_array
+from graspgen.io.arrow import column_array, variable_list
 from graspgen.io.objects import ObjectRecord
 from graspgen.quality.epsilon import (
     CONTACT_SOURCES,
@@ -72,10 +71,10 @@ from graspgen.quality.epsilon import (
     contact_set,
     object_geometry,
 )
-from graspgen.sim.grippers import GripperSpec, get_gripper
+from graspgen.sim.grippers import GripperSpec, load_gripper
 from graspgen.sim.lift import LiftParams, LiftSimulator, Outcome, RolloutResult
 from graspgen.sim.scene_model import object_body_name
-from graspgen.validation import check
+from graspgen.validation import check, check_int, check_number, check_transform
 
 __all__ = [
     "DRAWS_PER_COPY",
@@ -160,12 +159,6 @@ class RobustnessTaskParams:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def _check_count(name: str, value: Any) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 0:
-        raise ValueError(f"{name}: expected an integer >= 0, got {value!r}")
-    return int(value)
-
-
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
     """Wilson score interval of a binomial proportion.
 
@@ -188,11 +181,9 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     normal (Wald) interval it stays inside [0, 1] and does not collapse to a point at 0/n or n/n: for 0/n it is
     ``[0, z^2 / (n + z^2)]``.
     """
-    successes, n = _check_count("successes", successes), _check_count("n", n)
-    if successes > n:
-        raise ValueError(f"successes: must be <= n ({n}), got {successes}")
-    if isinstance(z, bool) or not isinstance(z, numbers.Real) or not (0 < z < math.inf):
-        raise ValueError(f"z: must be a finite number > 0, got {z!r}")
+    successes, n = check_int("successes", successes, low=0), check_int("n", n, low=0)
+    check("successes", successes <= n, f"be <= n ({n})", successes)
+    check_number("z", z, low=0.0, low_open=True)
     if n == 0:
         return math.nan, math.nan
     p = successes / n
@@ -238,9 +229,7 @@ def perturbed_poses(T: np.ndarray, translation: np.ndarray, rotation: np.ndarray
     -------
     (n, 4, 4) float
     """
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4):
-        raise ValueError(f"T: expected shape (4, 4), got {T.shape}")
+    T = check_transform("T", T)
     t = np.asarray(translation, dtype=np.float64).reshape(-1, 3)
     w = np.asarray(rotation, dtype=np.float64).reshape(-1, 3)
     if len(t) != len(w):
@@ -511,12 +500,6 @@ SCHEMA = pa.schema(
 """The robustness table's schema (see the module docstring)."""
 
 
-def _list_column(parts: list[np.ndarray], arrow_type: pa.DataType, dtype: Any) -> pa.ListArray:
-    offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int32)
-    values = np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
-    return pa.ListArray.from_arrays(pa.array(offsets), pa.array(values, type=arrow_type))
-
-
 def scene_robustness(
     grasps: pa.Table,
     rollouts: pa.Table,
@@ -551,7 +534,7 @@ def scene_robustness(
     poses = column_array(grasps, "pose_world", (4, 4))
     widths = grasps.column("width").to_numpy()
     index = grasps.column("object_index").to_numpy()
-    gripper = get_gripper(grasps.column("gripper")[0].as_py()) if n_grasps else None
+    gripper = load_gripper(grasps.column("gripper")[0].as_py()) if n_grasps else None
     geometries: dict[str, ObjectGeometry] = {}
     nan = math.nan
     rows: list[GraspRobustness | None] = []
@@ -579,10 +562,8 @@ def scene_robustness(
         "robustness_lo": num(lambda r: r.interval[0]),
         "robustness_hi": num(lambda r: r.interval[1]),
         "pfc": num(lambda r: r.pfc),
-        "copy_outcomes": _list_column([r.outcomes if r is not None else np.zeros(0, np.int8) for r in rows],
-                                      pa.int8(), np.int8),
-        "copy_epsilon": _list_column([r.epsilons if r is not None else np.zeros(0) for r in rows],
-                                     pa.float64(), np.float64),
+        "copy_outcomes": variable_list([r.outcomes if r is not None else () for r in rows], pa.int8()),
+        "copy_epsilon": variable_list([r.epsilons if r is not None else () for r in rows], pa.float64()),
     }
     for a, axis in enumerate(RADIUS_AXES):
         arrays[f"radius_{axis}"] = num(lambda r, a=a: r.radius[a])

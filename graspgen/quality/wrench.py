@@ -49,11 +49,12 @@ rebuilt with qhull's default merging for 6-D (``Qx``), whose failure means the i
 from __future__ import annotations
 
 import functools
-import numbers
 
 import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, QhullError
+
+from graspgen.validation import check_int, check_number
 
 __all__ = [
     "EPSILON_TOL",
@@ -126,36 +127,6 @@ def _check_center_of_mass(center_of_mass) -> np.ndarray:
     if not np.isfinite(arr).all():
         raise ValueError("center_of_mass: contains NaN or infinite values")
     return arr
-
-
-def _check_scalar(name: str, value, *, allow_zero: bool = False) -> float:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.ndarray)) or np.ndim(value):
-        raise ValueError(f"{name}: expected a real number, got {value!r}")
-    x = float(value)
-    if not np.isfinite(x) or x < 0.0 or (x == 0.0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"{name}: must be finite and {bound}, got {value!r}")
-    return x
-
-
-def _check_friction(friction) -> float:
-    return _check_scalar("friction", friction)
-
-
-def _check_torque_scale(torque_scale) -> float:
-    return _check_scalar("torque_scale", torque_scale)
-
-
-def _check_torsional_friction(torsional_friction) -> float:
-    return _check_scalar("torsional_friction", torsional_friction, allow_zero=True)
-
-
-def _check_num_cone_edges(num_cone_edges) -> int:
-    if isinstance(num_cone_edges, (bool, np.bool_)) or not isinstance(num_cone_edges, numbers.Integral):
-        raise ValueError(f"num_cone_edges: expected an integer, got {num_cone_edges!r}")
-    if num_cone_edges < 3:
-        raise ValueError(f"num_cone_edges: must be >= 3, got {num_cone_edges}")
-    return int(num_cone_edges)
 
 
 def _check_wrenches(wrenches) -> np.ndarray:
@@ -265,8 +236,8 @@ def friction_cone_edges(normals, friction, num_cone_edges=8) -> np.ndarray:
         message starts with the argument's name.
     """
     n = _check_normals(normals)
-    mu = _check_friction(friction)
-    m = _check_num_cone_edges(num_cone_edges)
+    mu = check_number("friction", friction, low=0.0, low_open=True)
+    m = check_int("num_cone_edges", num_cone_edges, low=3)
     return _cone_edges(n, mu, m)
 
 
@@ -274,10 +245,10 @@ def _checked_wrenches(points, normals, center_of_mass, friction, torque_scale, n
     p = _check_points(points)
     n = _check_normals(normals, p.shape[0])
     c = _check_center_of_mass(center_of_mass)
-    mu = _check_friction(friction)
-    scale = _check_torque_scale(torque_scale)
-    m = _check_num_cone_edges(num_cone_edges)
-    gamma = _check_torsional_friction(torsional_friction)
+    mu = check_number("friction", friction, low=0.0, low_open=True)
+    scale = check_number("torque_scale", torque_scale, low=0.0, low_open=True)
+    m = check_int("num_cone_edges", num_cone_edges, low=3)
+    gamma = check_number("torsional_friction", torsional_friction, low=0.0)
     return _wrenches(p, n, c, mu, scale, m, gamma)
 
 

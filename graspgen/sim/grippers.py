@@ -1,6 +1,6 @@
 """Grippers as data, and the MuJoCo model of a floating parallel-jaw gripper built from that data.
 
-Frames (DESIGN section 4). A grasp pose is the 4x4 transform of the gripper's tool centre point (TCP) frame:
+Frames (ARCHITECTURE.md, Conventions). A grasp pose is the 4x4 transform of the gripper's tool centre point (TCP) frame:
 
 * origin: midpoint between the two finger pads (between their contact faces, half-way along the pads);
 * z: approach direction (palm -> object);
@@ -69,13 +69,13 @@ so every helper here looks elements up by *name* (``name_prefix`` + local name),
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
 import mujoco
 import numpy as np
 
 from graspgen.errors import SettingsError
+from graspgen.validation import check, check_choice, check_number, check_transform, check_vector
 
 __all__ = [
     "Box",
@@ -87,7 +87,7 @@ __all__ = [
     "GRIPPER_GEOM_GROUP",
     "PhysicsOptions",
     "physics_options",
-    "get_gripper",
+    "load_gripper",
     "build_gripper",
     "attach_gripper",
     "set_gripper_pose",
@@ -132,20 +132,6 @@ _WELD_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def _vec3(value, what: str, *, positive: bool = False, nonneg: bool = False) -> tuple[float, float, float]:
-    try:
-        arr = np.asarray(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what}: expected 3 numbers, got {value!r}") from None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{what}: expected 3 finite numbers, got {value!r}")
-    if positive and np.any(arr <= 0):
-        raise ValueError(f"{what}: every entry must be > 0, got {value!r}")
-    if nonneg and np.any(arr < 0):
-        raise ValueError(f"{what}: every entry must be >= 0, got {value!r}")
-    return (float(arr[0]), float(arr[1]), float(arr[2]))
-
-
 @dataclass(frozen=True)
 class Box:
     """An axis-aligned collision box in the gripper's TCP frame (used for the palm / hand body)."""
@@ -156,8 +142,8 @@ class Box:
     """Centre of the box (m) in the TCP frame; the palm lies at negative z (behind the pads)."""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "size", _vec3(self.size, "Box.size", positive=True))
-        object.__setattr__(self, "pos", _vec3(self.pos, "Box.pos"))
+        object.__setattr__(self, "size", check_vector("Box.size", self.size, 3, low=0.0, low_open=True))
+        object.__setattr__(self, "pos", check_vector("Box.pos", self.pos, 3))
 
 
 @dataclass(frozen=True)
@@ -198,37 +184,26 @@ class GripperSpec:
     """Where the numbers come from (data sheets, reference models) and what was approximated."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name.strip():
-            raise ValueError(f"name: expected a non-empty string, got {self.name!r}")
-        for key in ("min_width", "max_width", "tcp_offset", "force_limit", "finger_mass", "body_mass",
-                    "closing_speed"):
-            value = getattr(self, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ValueError(f"{key}: expected a finite number, got {value!r}")
-            object.__setattr__(self, key, float(value))
-        if self.min_width < 0:
-            raise ValueError(f"min_width: must be >= 0 m, got {self.min_width}")
-        if self.max_width <= self.min_width:
-            raise ValueError(f"max_width: must be > min_width ({self.min_width} m), got {self.max_width}")
+        check("name", isinstance(self.name, str) and bool(self.name.strip()), "be a non-empty string", self.name)
+        object.__setattr__(self, "min_width", check_number("min_width", self.min_width, low=0.0))
+        object.__setattr__(self, "max_width", check_number("max_width", self.max_width, low=self.min_width,
+                                                           low_open=True))
         for key in ("tcp_offset", "force_limit", "finger_mass", "body_mass", "closing_speed"):
-            if getattr(self, key) <= 0:
-                raise ValueError(f"{key}: must be > 0, got {getattr(self, key)}")
-        object.__setattr__(self, "pad_size", _vec3(self.pad_size, "pad_size", positive=True))
-        object.__setattr__(self, "pad_friction", _vec3(self.pad_friction, "pad_friction", nonneg=True))
-        object.__setattr__(self, "finger_size", _vec3(self.finger_size, "finger_size", positive=True))
-        if self.pad_friction[0] <= 0:
-            raise ValueError(f"pad_friction: the sliding coefficient must be > 0, got {self.pad_friction}")
-        if self.finger_size[2] < self.pad_size[2]:
-            raise ValueError(f"finger_size: the finger (length {self.finger_size[2]} m) must be at least as long as "
-                             f"its pad (pad_size z = {self.pad_size[2]} m)")
-        if self.pad_condim not in (1, 3, 4, 6) or isinstance(self.pad_condim, bool):
-            raise ValueError(f"pad_condim: must be 1, 3, 4 or 6, got {self.pad_condim!r}")
+            object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0, low_open=True))
+        object.__setattr__(self, "pad_size", check_vector("pad_size", self.pad_size, 3, low=0.0, low_open=True))
+        object.__setattr__(self, "pad_friction", check_vector("pad_friction", self.pad_friction, 3, low=0.0))
+        object.__setattr__(self, "finger_size", check_vector("finger_size", self.finger_size, 3, low=0.0,
+                                                             low_open=True))
+        check("pad_friction", self.pad_friction[0] > 0, "have a sliding coefficient > 0", self.pad_friction)
+        check("finger_size", self.finger_size[2] >= self.pad_size[2],
+              f"be at least as long as its pad (length >= pad_size z = {self.pad_size[2]} m)", self.finger_size)
+        check("pad_condim", self.pad_condim in (1, 3, 4, 6) and not isinstance(self.pad_condim, bool),
+              "be one of 1, 3, 4, 6", self.pad_condim)
         boxes = tuple(self.palm_boxes)
-        if not boxes or not all(isinstance(b, Box) for b in boxes):
-            raise ValueError(f"palm_boxes: expected a non-empty sequence of Box, got {self.palm_boxes!r}")
+        check("palm_boxes", bool(boxes) and all(isinstance(b, Box) for b in boxes), "be a non-empty sequence of Box",
+              self.palm_boxes)
         object.__setattr__(self, "palm_boxes", boxes)
-        if not isinstance(self.source, str):
-            raise ValueError(f"source: expected a string, got {self.source!r}")
+        check("source", isinstance(self.source, str), "be a string", self.source)
 
     @property
     def stroke(self) -> float:
@@ -333,7 +308,7 @@ def jaw_opening(width, width_margin: float, min_width: float, max_width: float) 
     return np.clip(np.asarray(width, dtype=float) + width_margin, min_width, max_width)
 
 
-def get_gripper(name: str) -> GripperSpec:
+def load_gripper(name: str) -> GripperSpec:
     """The registered :class:`GripperSpec` called ``name``; :class:`SettingsError` listing the choices otherwise."""
     try:
         return GRIPPERS[name]
@@ -372,15 +347,11 @@ class PhysicsOptions:
     """Gravity (m/s^2) in the world frame."""
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.timestep, (int, float)) and 0 < self.timestep <= 0.05):
-            raise ValueError(f"timestep: expected 0 < timestep <= 0.05 s, got {self.timestep!r}")
-        if self.cone not in _CONES:
-            raise ValueError(f"cone: expected one of {sorted(_CONES)}, got {self.cone!r}")
-        if not (isinstance(self.impratio, (int, float)) and self.impratio >= 1):
-            raise ValueError(f"impratio: expected a number >= 1, got {self.impratio!r}")
-        if self.integrator not in _INTEGRATORS:
-            raise ValueError(f"integrator: expected one of {sorted(_INTEGRATORS)}, got {self.integrator!r}")
-        object.__setattr__(self, "gravity", _vec3(self.gravity, "gravity"))
+        check_number("timestep", self.timestep, low=0.0, high=0.05, low_open=True)
+        check_choice("cone", self.cone, sorted(_CONES))
+        check_number("impratio", self.impratio, low=1.0)
+        check_choice("integrator", self.integrator, sorted(_INTEGRATORS))
+        object.__setattr__(self, "gravity", check_vector("gravity", self.gravity, 3))
 
     def apply(self, target: mujoco.MjSpec | mujoco.MjModel):
         """Write these settings into an :class:`mujoco.MjSpec` (``spec.option``) or a compiled :class:`mujoco.MjModel`
@@ -611,30 +582,18 @@ def _id(model: mujoco.MjModel, objtype, name: str) -> int:
     return idx
 
 
-_EYE3 = np.eye(3)
-
-
-def _check_pose(T) -> tuple[np.ndarray, np.ndarray]:
-    T = np.asarray(T, dtype=float)
-    if T.shape != (4, 4):
-        raise ValueError(f"expected a 4x4 transform, got shape {T.shape}")
-    R = np.ascontiguousarray(T[:3, :3])
-    # Cheap checks (this runs once per simulation step in lift loops): orthonormal to 1e-6 (NaN fails too) and a
-    # proper rotation (determinant +1, not a reflection).
-    if not float(np.abs(R @ R.T - _EYE3).max()) <= 1e-6 or float(np.linalg.det(R)) <= 0:
-        raise ValueError("the 4x4 transform's rotation block is not a proper rotation")
-    pos = T[:3, 3].copy()
-    if not np.isfinite(pos).all():
-        raise ValueError("the 4x4 transform's translation is not finite")
+def _pos_quat(T) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), unit quaternion (4,)) of the rigid transform ``T_tcp``; SettingsError otherwise."""
+    T = check_transform("T_tcp", T)
     quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, R.reshape(-1))
-    return pos, quat
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T[:3, :3]).reshape(-1))
+    return T[:3, 3].copy(), quat
 
 
 def set_gripper_target(model: mujoco.MjModel, data: mujoco.MjData, T_tcp, *, prefix: str = "gripper/") -> None:
     """Move only the mocap target to TCP pose ``T_tcp`` (4x4, world); the weld pulls the gripper there while
     stepping. Use for smooth motions (approach, lift)."""
-    pos, quat = _check_pose(T_tcp)
+    pos, quat = _pos_quat(T_tcp)
     mocap_id = model.body_mocapid[_id(model, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}mocap")]
     data.mocap_pos[mocap_id] = pos
     data.mocap_quat[mocap_id] = quat
@@ -643,7 +602,7 @@ def set_gripper_target(model: mujoco.MjModel, data: mujoco.MjData, T_tcp, *, pre
 def set_gripper_pose(model: mujoco.MjModel, data: mujoco.MjData, T_tcp, *, prefix: str = "gripper/") -> None:
     """Teleport the gripper: put the TCP frame (free joint) AND the mocap target at ``T_tcp`` (4x4, world), zero the
     base velocity, and run ``mj_forward``. Jaw joints are left as they are."""
-    pos, quat = _check_pose(T_tcp)
+    pos, quat = _pos_quat(T_tcp)
     set_gripper_target(model, data, T_tcp, prefix=prefix)
     jid = _id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{prefix}free")
     qadr, vadr = model.jnt_qposadr[jid], model.jnt_dofadr[jid]

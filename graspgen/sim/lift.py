@@ -1,4 +1,4 @@
-"""The grasp-and-lift protocol in MuJoCo and its outcome labels (DESIGN sections 4, 5.4, 6).
+"""The grasp-and-lift protocol in MuJoCo and its outcome labels (ARCHITECTURE.md, Conventions).
 
 :class:`LiftSimulator` takes a compiled scene (ground / support geoms, free object bodies, a floating gripper attached
 with :func:`graspgen.sim.grippers.attach_gripper`) and rolls out grasps in it: place the gripper at the pre-grasp pose,
@@ -28,7 +28,6 @@ from __future__ import annotations
 import copy
 import enum
 import math
-import numbers
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, fields
@@ -37,6 +36,7 @@ import mujoco
 import numpy as np
 
 from graspgen.sim.grippers import PhysicsOptions, jaw_opening
+from graspgen.validation import check_bool, check_instance, check_int, check_number, check_transform
 
 __all__ = [
     "Outcome",
@@ -49,7 +49,7 @@ __all__ = [
 
 
 class Outcome(enum.IntEnum):
-    """Outcome codes of a grasp-and-lift rollout (the research report's codes, DESIGN section 5.4)."""
+    """Outcome codes of a grasp-and-lift rollout (the research report's codes; ARCHITECTURE.md, Conventions)."""
 
     COLLISION_WITH_GROUND = 0
     COLLISION_WITH_TARGET = 1
@@ -72,53 +72,16 @@ _LEFT, _RIGHT, _PALM, _NOT_GRIPPER = 0, 1, 2, -1
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Argument checks (programmer errors -> ValueError naming the argument)
+# Argument checks (programmer errors -> SettingsError, a ValueError, naming the argument)
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def _check_number(name: str, value, *, low: float | None = None, low_open: bool = False,
-                  high: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
-        raise ValueError(f"{name}: expected a finite number, got {value!r}")
-    value = float(value)
-    if low is not None and (value < low or (low_open and value == low)):
-        raise ValueError(f"{name}: must be {'>' if low_open else '>='} {low}, got {value}")
-    if high is not None and value > high:
-        raise ValueError(f"{name}: must be <= {high}, got {value}")
-    return value
-
-
-def _check_int(name: str, value, *, low: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
-        raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
-    return int(value)
-
-
-def _check_bool(name: str, value) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{name}: expected a bool, got {value!r}")
-    return bool(value)
-
-
-def _check_pose(name: str, T) -> tuple[np.ndarray, np.ndarray]:
-    """(position (3,), unit quaternion (4,)) of a 4x4 rigid transform; ValueError naming ``name`` otherwise."""
-    try:
-        T = np.asarray(T, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a 4x4 transform, got {T!r}") from None
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise ValueError(f"{name}: expected a finite 4x4 transform, got shape {T.shape}")
-    R = np.ascontiguousarray(T[:3, :3])
-    # 1e-5, not 1e-6: poses read back from float32 storage are orthonormal only to ~1e-7 per entry, times a few.
-    if float(np.abs(R @ R.T - np.eye(3)).max()) > 1e-5 or float(np.linalg.det(R)) <= 0:
-        raise ValueError(f"{name}: the rotation block is not a proper rotation (orthonormal, det +1)")
+def _pos_quat(name: str, T) -> tuple[np.ndarray, np.ndarray]:
+    """(position (3,), unit quaternion (4,)) of a 4x4 rigid transform; SettingsError naming ``name`` otherwise."""
+    T = check_transform(name, T)
     quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, R.reshape(-1))
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T[:3, :3]).reshape(-1))
     return T[:3, 3].copy(), quat
-
-
-def _check_width(width) -> float:
-    return _check_number("width", width, low=0.0)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -213,7 +176,8 @@ class LiftParams:
     timestep: float = 0.002
     """Integration step (s)."""
     cone: str = "elliptic"
-    """Friction cone, ``"elliptic"`` or ``"pyramidal"`` (elliptic: no creep of held objects, DESIGN section 6)."""
+    """Friction cone, ``"elliptic"`` or ``"pyramidal"`` (elliptic: no creep of held objects, ARCHITECTURE.md,
+    Conventions)."""
     impratio: float = 10.0
     """Ratio of frictional to normal constraint impedance (> 1 makes friction stiffer, held objects do not creep)."""
     noslip_iterations: int = 0
@@ -229,23 +193,23 @@ class LiftParams:
         for key in ("approach_distance", "width_margin", "lift_height", "hold_time", "shake_amplitude",
                     "shake_angle", "max_target_shift", "max_target_turn", "slip_tolerance",
                     "slip_rotation_tolerance"):
-            object.__setattr__(self, key, _check_number(key, getattr(self, key), low=0.0))
+            object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0))
         for key in ("approach_speed", "approach_acceleration", "close_speed_tol", "close_timeout", "lift_speed",
                     "lift_acceleration", "shake_frequency", "timestep"):
-            object.__setattr__(self, key, _check_number(key, getattr(self, key), low=0.0, low_open=True))
+            object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0, low_open=True))
         if self.grip_force is not None:
-            object.__setattr__(self, "grip_force", _check_number("grip_force", self.grip_force, low=0.0,
-                                                                 low_open=True))
+            object.__setattr__(self, "grip_force", check_number("grip_force", self.grip_force, low=0.0,
+                                                                low_open=True))
         object.__setattr__(self, "min_lift_fraction",
-                           _check_number("min_lift_fraction", self.min_lift_fraction, low=0.0, high=1.0))
-        object.__setattr__(self, "shake", _check_bool("shake", self.shake))
-        object.__setattr__(self, "gravity_until_closed", _check_bool("gravity_until_closed",
-                                                                     self.gravity_until_closed))
-        object.__setattr__(self, "shake_cycles", _check_int("shake_cycles", self.shake_cycles, low=1))
-        object.__setattr__(self, "check_interval", _check_int("check_interval", self.check_interval, low=1))
-        object.__setattr__(self, "noslip_iterations", _check_int("noslip_iterations", self.noslip_iterations, low=0))
-        object.__setattr__(self, "iterations", _check_int("iterations", self.iterations, low=1))
-        object.__setattr__(self, "ls_iterations", _check_int("ls_iterations", self.ls_iterations, low=1))
+                           check_number("min_lift_fraction", self.min_lift_fraction, low=0.0, high=1.0))
+        object.__setattr__(self, "shake", check_bool("shake", self.shake))
+        object.__setattr__(self, "gravity_until_closed", check_bool("gravity_until_closed",
+                                                                    self.gravity_until_closed))
+        object.__setattr__(self, "shake_cycles", check_int("shake_cycles", self.shake_cycles, low=1))
+        object.__setattr__(self, "check_interval", check_int("check_interval", self.check_interval, low=1))
+        object.__setattr__(self, "noslip_iterations", check_int("noslip_iterations", self.noslip_iterations, low=0))
+        object.__setattr__(self, "iterations", check_int("iterations", self.iterations, low=1))
+        object.__setattr__(self, "ls_iterations", check_int("ls_iterations", self.ls_iterations, low=1))
         self.physics_options((0.0, 0.0, -9.81))  # validates timestep, cone, impratio, integrator (names the field)
 
     def physics_options(self, gravity) -> PhysicsOptions:
@@ -462,11 +426,8 @@ class LiftSimulator:
 
     def __init__(self, model: mujoco.MjModel, params: LiftParams | None = None, *, qpos=None,
                  prefix: str = "gripper/") -> None:
-        if not isinstance(model, mujoco.MjModel):
-            raise ValueError(f"model: expected a compiled mujoco.MjModel, got {type(model).__name__}")
-        params = LiftParams() if params is None else params
-        if not isinstance(params, LiftParams):
-            raise ValueError(f"params: expected LiftParams, got {type(params).__name__}")
+        check_instance("model", model, mujoco.MjModel, what="compiled mujoco.MjModel")
+        params = check_instance("params", LiftParams() if params is None else params, LiftParams)
         if not isinstance(prefix, str) or not prefix:
             raise ValueError(f"prefix: expected a non-empty string, got {prefix!r}")
         self.params = params
@@ -751,8 +712,8 @@ class LiftSimulator:
         -------
         RolloutResult
         """
-        pos, quat = _check_pose("T_tcp_world", T_tcp_world)
-        width = _check_width(width)
+        pos, quat = _pos_quat("T_tcp_world", T_tcp_world)
+        width = check_number("width", width, low=0.0)
         target, roles, index = self._target_roles(target_body)
         p = self.params
         self.steps = 0

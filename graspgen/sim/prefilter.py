@@ -6,7 +6,7 @@ along its approach line, from the pre-grasp pose ``approach_distance`` back alon
 frame) to the grasp pose itself. At each pose only ``mj_kinematics`` + ``mj_collision`` run (no ``mj_step``), and
 every contact between a gripper geom and another geom with signed distance ``< margin`` is a collision.
 
-Result codes (the rollout outcome codes of DESIGN section 5.4 for the same events):
+Result codes (the rollout outcome codes of ARCHITECTURE.md for the same events):
 
 * ``-1`` (:data:`FREE`): no collision at any checked pose;
 * ``0`` (:data:`GROUND`): the gripper hits the ground or a support (any geom that is not part of an object);
@@ -36,13 +36,13 @@ gripper are ignored. Every non-gripper joint stays at its ``qpos0``: the scene i
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from graspgen.sim.grippers import GripperSpec, attach_gripper, gripper_geom_ids, jaw_opening
+from graspgen.validation import check_instance, check_number, check_positive_int, check_transforms
 
 __all__ = [
     "FREE",
@@ -72,35 +72,8 @@ OBJECT_PREFIX = "obj/"
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Argument checks (programmer errors -> ValueError naming the argument)
+# Argument checks (programmer errors -> ValueError naming the argument; the generic ones: graspgen.validation)
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def _check_number(name: str, value: object, *, low: float | None = None, low_open: bool = False) -> None:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name}: must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name}: must be finite, got {value!r}")
-    if low is not None and (value <= low if low_open else value < low):
-        raise ValueError(f"{name}: must be {'>' if low_open else '>='} {low:g}, got {value!r}")
-
-
-def _check_positive_int(name: str, value: object) -> None:
-    if not isinstance(value, (int, np.integer)) or isinstance(value, (bool, np.bool_)) or value < 1:
-        raise ValueError(f"{name}: must be a positive integer, got {value!r}")
-
-
-def _check_poses(poses: object) -> np.ndarray:
-    T = np.asarray(poses, dtype=float)
-    if T.ndim != 3 or T.shape[1:] != (4, 4):
-        raise ValueError(f"T_tcp_world: must have shape (n, 4, 4), got {T.shape}")
-    if not np.isfinite(T).all():
-        raise ValueError("T_tcp_world: must be finite")
-    R = T[:, :3, :3]
-    ortho = np.abs(np.matmul(R, np.swapaxes(R, 1, 2)) - np.eye(3)).max(initial=0.0)
-    if ortho > 1e-6 or (len(T) and np.linalg.det(R).min() <= 0):
-        raise ValueError("T_tcp_world: every rotation block must be a proper rotation (orthonormal, det +1)")
-    return T
 
 
 def _check_widths(widths: object, n: int) -> np.ndarray:
@@ -135,10 +108,10 @@ class PrefilterParams:
     value as :attr:`graspgen.geometry.antipodal.AntipodalParams.width_margin` and as the rollout."""
 
     def __post_init__(self) -> None:
-        _check_number("approach_distance", self.approach_distance, low=0.0)
-        _check_positive_int("num_approach_samples", self.num_approach_samples)
-        _check_number("margin", self.margin)
-        _check_number("width_margin", self.width_margin, low=0.0)
+        check_number("approach_distance", self.approach_distance, low=0.0)
+        check_positive_int("num_approach_samples", self.num_approach_samples)
+        check_number("margin", self.margin)
+        check_number("width_margin", self.width_margin, low=0.0)
 
 
 def approach_offsets(params: PrefilterParams) -> np.ndarray:
@@ -166,8 +139,8 @@ class CollisionChecker:
         The scene as an :class:`mujoco.MjSpec`: support geoms, objects as bodies ``obj/<index>_<name>`` (mesh geoms)
         at their poses (free joints at ``qpos0`` = their spec pose). It is copied, never modified. If it already
         holds a gripper named ``name_prefix`` (a body ``<name_prefix>base``), that one is used (``gripper`` must
-        describe it); otherwise ``gripper`` is attached with :func:`graspgen.sim.grippers.attach_gripper`. Every geom whose
-        name starts with ``name_prefix`` is the gripper's.
+        describe it); otherwise ``gripper`` is attached with :func:`graspgen.sim.grippers.attach_gripper`. Every
+        geom whose name starts with ``name_prefix`` is the gripper's.
     gripper
         The gripper whose geoms are checked; gives the opening range.
     params
@@ -178,13 +151,9 @@ class CollisionChecker:
 
     def __init__(self, world: mujoco.MjSpec, gripper: GripperSpec, params: PrefilterParams | None = None, *,
                  name_prefix: str = "gripper/") -> None:
-        if not isinstance(world, mujoco.MjSpec):
-            raise ValueError(f"world: must be a mujoco.MjSpec, got {type(world).__name__}")
-        if not isinstance(gripper, GripperSpec):
-            raise ValueError(f"gripper: must be a GripperSpec, got {type(gripper).__name__}")
-        params = PrefilterParams() if params is None else params
-        if not isinstance(params, PrefilterParams):
-            raise ValueError(f"params: must be a PrefilterParams, got {type(params).__name__}")
+        check_instance("world", world, mujoco.MjSpec, what="mujoco.MjSpec")
+        check_instance("gripper", gripper, GripperSpec)
+        params = check_instance("params", PrefilterParams() if params is None else params, PrefilterParams)
         self.gripper = gripper
         self.params = params
         self.prefix = name_prefix
@@ -281,7 +250,7 @@ class CollisionChecker:
         codes : (n,) int8
             -1 free, 0 ground/support, 1 target, 2 clutter.
         """
-        T = _check_poses(T_tcp_world)
+        T = check_transforms("T_tcp_world", T_tcp_world)
         n = len(T)
         openings = self.opening(_check_widths(widths, n))
         target_root = self._target_root(target_body_name)

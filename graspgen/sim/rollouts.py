@@ -40,9 +40,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from graspgen.io.arrow import column_array
+from graspgen.io.arrow import column_array, variable_list
 from graspgen.io.scenes import SceneRecord, read_scene
-from graspgen.sim.grippers import attach_gripper, get_gripper
+from graspgen.sim.grippers import attach_gripper, load_gripper
 from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, RolloutResult
 from graspgen.sim.scene_model import object_body_name
 from graspgen.sim.scenes import scene_spec
@@ -87,7 +87,7 @@ def scene_simulator(
     scene = read_scene(scene_path)
     records = {n: load_object(n) for n in sorted(set(scene.object_names))}
     spec = scene_spec(scene, records, visual=False)
-    attach_gripper(spec, get_gripper(gripper))
+    attach_gripper(spec, load_gripper(gripper))
     return scene, LiftSimulator(spec.compile(), lift)
 
 
@@ -115,15 +115,8 @@ def results_table(grasps: pa.Table, results: list[RolloutResult | None]) -> pa.T
     def num(attr: str, missing: float = float("nan")) -> np.ndarray:
         return np.array([getattr(r, attr) if r is not None else missing for r in results], dtype=np.float64)
 
-    def listed(attr: str, dtype: Any) -> pa.Array:
-        parts = [
-            np.asarray(getattr(r, attr), dtype=dtype).reshape(-1) if r is not None else np.zeros(0, dtype)
-            for r in results
-        ]
-        offsets = np.concatenate([[0], np.cumsum([len(p) for p in parts])]).astype(np.int32)
-        values = np.concatenate(parts) if parts else np.zeros(0, dtype)
-        arrow_type = pa.float64() if dtype is np.float64 else pa.int8()
-        return pa.ListArray.from_arrays(pa.array(offsets), pa.array(values, type=arrow_type))
+    def listed(attr: str, value_type: pa.DataType) -> pa.ListArray:
+        return variable_list([getattr(r, attr) if r is not None else () for r in results], value_type)
 
     arrays = {
         "scene_id": grasps.column("scene_id"),
@@ -138,9 +131,9 @@ def results_table(grasps: pa.Table, results: list[RolloutResult | None]) -> pa.T
         "lift_gain": pa.array(num("lift_gain")),
         "rel_translation": pa.array(num("rel_translation")),
         "rel_rotation": pa.array(num("rel_rotation")),
-        "contact_points": listed("contact_points", np.float64),
-        "contact_normals": listed("contact_normals", np.float64),
-        "contact_forces": listed("contact_forces", np.float64),
-        "contact_fingers": listed("contact_fingers", np.int8),
+        "contact_points": listed("contact_points", pa.float64()),
+        "contact_normals": listed("contact_normals", pa.float64()),
+        "contact_forces": listed("contact_forces", pa.float64()),
+        "contact_fingers": listed("contact_fingers", pa.int8()),
     }
     return pa.table(arrays, schema=SCHEMA)

@@ -1,8 +1,8 @@
 """Stage 3, ``grasps``: antipodal grasp candidates for every object of every scene, collision pre-filtered.
 
 One task per scene. For each target object: antipodal sampling on its mesh at its settled pose
-(:func:`graspgen.geometry.antipodal.sample_antipodal`), at most ``max_per_object`` candidates kept (a seeded subsample), then
-the static collision pre-filter with the real gripper geoms along the approach line
+(:func:`graspgen.geometry.antipodal.sample_antipodal`), at most ``max_per_object`` candidates kept (a seeded
+subsample), then the static collision pre-filter with the real gripper geoms along the approach line
 (:class:`graspgen.sim.prefilter.CollisionChecker`). Rejected candidates keep their reason as a label (``prefilter_code``
 0 ground/support, 1 target, 2 clutter; the same codes as the rollout outcomes) and stay in the table when
 ``keep_rejected`` is true, so the dataset has labelled negatives.
@@ -42,11 +42,11 @@ from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal
 from graspgen.io.arrow import fixed_list
 from graspgen.io.objects import ObjectRecord
 from graspgen.io.scenes import read_scene
-from graspgen.sim.grippers import GRIPPERS, get_gripper
+from graspgen.sim.grippers import GRIPPERS, load_gripper
 from graspgen.sim.prefilter import CollisionChecker, PrefilterParams
 from graspgen.sim.scene_model import object_body_name
 from graspgen.sim.scenes import scene_spec
-from graspgen.validation import check
+from graspgen.validation import check, check_choice
 
 PREFILTER_NAMES = {-1: "free", 0: "collision_with_ground", 1: "collision_with_target", 2: "collision_with_clutter"}
 
@@ -69,7 +69,7 @@ class GraspsParams:
     """Static collision check along the approach."""
 
     def __post_init__(self) -> None:
-        check("gripper", self.gripper in GRIPPERS, f"be one of {', '.join(sorted(GRIPPERS))}", self.gripper)
+        check_choice("gripper", self.gripper, sorted(GRIPPERS))
         check("max_per_object", self.max_per_object > 0, "be > 0", self.max_per_object)
         check(
             "prefilter.width_margin",
@@ -125,7 +125,7 @@ def sample_scene_grasps(
     """
     scene = read_scene(scene_path)
     records: dict[str, ObjectRecord] = {n: load_object(n) for n in sorted(set(scene.object_names))}
-    gripper = get_gripper(params.gripper)
+    gripper = load_gripper(params.gripper)
     checker = CollisionChecker(scene_spec(scene, records, visual=False), gripper, params.prefilter)
     columns: dict[str, list[np.ndarray]] = {f: [] for f in SCHEMA.names}
     rejected: dict[str, int] = {}

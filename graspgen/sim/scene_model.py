@@ -71,7 +71,14 @@ import numpy as np  # noqa: E402
 
 from graspgen.errors import RenderError, SimulationError  # noqa: E402
 from graspgen.sim.grippers import PhysicsOptions  # noqa: E402
-from graspgen.validation import check  # noqa: E402
+from graspgen.validation import (  # noqa: E402
+    check,
+    check_instance,
+    check_number,
+    check_positive_int,
+    check_transform,
+    check_transforms,
+)
 
 __all__ = [
     "GROUP_SUPPORT",
@@ -290,13 +297,10 @@ class PlacedObject:
     """Colour; None picks one from a fixed palette by scene index."""
 
     def __post_init__(self) -> None:
-        _check_pose(self.pose, f"{self.name}.pose")
-        if not self.convex_parts:
-            raise ValueError(f"{self.name}.convex_parts: must hold at least one part")
-        if not (self.mass > 0 and math.isfinite(self.mass)):
-            raise ValueError(f"{self.name}.mass: must be > 0, got {self.mass!r}")
-        if not (self.friction > 0 and math.isfinite(self.friction)):
-            raise ValueError(f"{self.name}.friction: must be > 0, got {self.friction!r}")
+        check_transform(f"{self.name}.pose", self.pose)
+        check(f"{self.name}.convex_parts", len(self.convex_parts) > 0, "hold at least one part", self.convex_parts)
+        check_number(f"{self.name}.mass", self.mass, low=0.0, low_open=True)
+        check_number(f"{self.name}.friction", self.friction, low=0.0, low_open=True)
 
 
 def placed_object(record: Any, pose: np.ndarray, friction: float, *, rgba=None, visual: bool = True) -> PlacedObject:
@@ -317,16 +321,6 @@ def placed_object(record: Any, pose: np.ndarray, friction: float, *, rgba=None, 
 def object_body_name(index: int, name: str) -> str:
     """Body name of the object with scene index ``index``: ``obj/<index>_<name>``."""
     return f"{OBJECT_PREFIX}{index}_{name}"
-
-
-def _check_pose(pose: Any, name: str) -> np.ndarray:
-    arr = np.asarray(pose, dtype=float)
-    if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: must be a finite (4, 4) transform, got shape {arr.shape}")
-    rot = arr[:3, :3]
-    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
-        raise ValueError(f"{name}: the upper-left 3x3 block must be a rotation")
-    return arr
 
 
 def pose_to_pos_quat(pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -379,8 +373,7 @@ def build_scene_spec(
     mujoco.MjSpec
         Compile with ``spec.compile()``; attach a gripper to it with :func:`graspgen.sim.grippers.attach_gripper`.
     """
-    if not isinstance(support, SupportParams):
-        raise ValueError(f"support: must be a SupportParams, got {type(support).__name__}")
+    check_instance("support", support, SupportParams)
     spec = mujoco.MjSpec()
     spec.modelname = "scene"
     (physics or PhysicsOptions()).apply(spec)
@@ -535,8 +528,8 @@ def set_object_poses(model: mujoco.MjModel, data: mujoco.MjData, poses: np.ndarr
     bodies = object_bodies(model)
     if poses.shape != (len(bodies), 4, 4):
         raise ValueError(f"poses: must have shape ({len(bodies)}, 4, 4) for this model, got {poses.shape}")
-    for (index, _, body), pose in zip(bodies, poses):
-        _check_pose(pose, f"poses[{index}]")
+    check_transforms("poses", poses)
+    for (_, _, body), pose in zip(bodies, poses):
         q, v = _free_joint_adr(model, body)
         pos, quat = pose_to_pos_quat(pose)
         data.qpos[q : q + 3] = pos
@@ -698,13 +691,11 @@ class Camera:
 
     def __post_init__(self) -> None:
         K = np.asarray(self.K, dtype=float)
-        if K.shape != (3, 3) or K[0, 0] <= 0 or K[1, 1] <= 0 or not np.allclose(K[2], [0, 0, 1]):
-            raise ValueError(f"K: must be a (3, 3) pinhole matrix with fx, fy > 0, got {K.tolist()}")
-        _check_pose(self.T_world_camera, "T_world_camera")
-        if not (isinstance(self.width, (int, np.integer)) and self.width > 0):
-            raise ValueError(f"width: must be a positive integer, got {self.width!r}")
-        if not (isinstance(self.height, (int, np.integer)) and self.height > 0):
-            raise ValueError(f"height: must be a positive integer, got {self.height!r}")
+        pinhole = K.shape == (3, 3) and K[0, 0] > 0 and K[1, 1] > 0 and np.allclose(K[2], [0, 0, 1])
+        check("K", pinhole, "be a (3, 3) pinhole matrix with fx, fy > 0", K.tolist())
+        check_transform("T_world_camera", self.T_world_camera)
+        check_positive_int("width", self.width)
+        check_positive_int("height", self.height)
 
 
 def intrinsics_from_fov(width: int, height: int, fov_y: float) -> np.ndarray:
@@ -713,8 +704,7 @@ def intrinsics_from_fov(width: int, height: int, fov_y: float) -> np.ndarray:
     fy = fx = (height / 2) / tan(fov_y / 2); cx = (width - 1) / 2, cy = (height - 1) / 2 (pixel centres at
     integer coordinates, so the image centre lies between pixels for even sizes).
     """
-    if not 0 < fov_y < math.pi:
-        raise ValueError(f"fov_y: must be in (0, pi) rad, got {fov_y!r}")
+    check_number("fov_y", fov_y, low=0.0, high=math.pi, low_open=True, high_open=True)
     f = (height / 2) / math.tan(fov_y / 2)
     return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
 

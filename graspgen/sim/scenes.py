@@ -92,7 +92,7 @@ from graspgen.sim.scene_model import (
     support_boxes,
     transform_points,
 )
-from graspgen.validation import check  # noqa: E402
+from graspgen.validation import check, check_range  # noqa: E402
 
 _FALL_DEPTH = 0.005
 """An object whose centre of mass ends below the support's top surface by more than this (m) has fallen off."""
@@ -100,11 +100,6 @@ _FALL_DEPTH = 0.005
 # ---------------------------------------------------------------------------------------------------------------
 # Config
 # ---------------------------------------------------------------------------------------------------------------
-
-
-def _check_range(name: str, value: tuple[float, float], low: float = -math.inf, high: float = math.inf) -> None:
-    check(name, len(value) == 2 and value[0] <= value[1], "be [min, max] with min <= max", value)
-    check(name, low <= value[0] and value[1] <= high, f"lie in [{low:g}, {high:g}]", value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,10 +164,10 @@ class CameraParams:
 
     def __post_init__(self) -> None:
         check("num_views", self.num_views >= 0, "be >= 0", self.num_views)
-        _check_range("distance", self.distance, low=1e-3)
-        _check_range("elevation", self.elevation, low=-math.pi / 2, high=math.pi / 2)
-        _check_range("azimuth", self.azimuth, low=-4 * math.pi, high=4 * math.pi)
-        _check_range("roll", self.roll, low=-math.pi, high=math.pi)
+        check_range("distance", self.distance, low=1e-3)
+        check_range("elevation", self.elevation, low=-math.pi / 2, high=math.pi / 2)
+        check_range("azimuth", self.azimuth, low=-4 * math.pi, high=4 * math.pi)
+        check_range("roll", self.roll, low=-math.pi, high=math.pi)
         check("width", 8 <= self.width <= 8192, "be in [8, 8192] pixels", self.width)
         check("height", 8 <= self.height <= 8192, "be in [8, 8192] pixels", self.height)
         check("fov_y", 0 < self.fov_y < math.pi, "be in (0, pi) rad", self.fov_y)

@@ -1,12 +1,13 @@
 """Grasps drawn on a scene's camera image: the picture behind ``gen show grasps``.
 
 Each grasp is drawn as the classic parallel-jaw "fork" marker, in 3-D and then projected: in the grasp's TCP frame
-(DESIGN section 4: z approach, x closing, origin at the pads' centre) the two fingers are segments at
+(ARCHITECTURE.md, Conventions: z approach, x closing, origin at the pads' centre) the two fingers are segments at
 ``x = -+open_width / 2`` from the pad tips (``z = +pad_length / 2``) back to ``z = -pad_length / 2``, a palm bar
 joins their backs, and a stem of one pad length points back along -z (which way the gripper came from).
-:func:`grasp_marker_segments` gives these segments in the world frame; :func:`segment_pixels` projects them with a
-scene view's :class:`~graspgen.sim.scene_model.Camera` (OpenCV convention, the same as :func:`graspgen.sim.scene_model.project`);
-:func:`draw_grasps` draws them with Pillow on the view's RGB image, upscaled so that markers stay legible on a
+:func:`grasp_marker_segments` gives these segments in the world frame; :func:`segment_pixels` projects them with a scene
+view's :class:`~graspgen.sim.scene_model.Camera` (OpenCV convention, the same as
+:func:`graspgen.sim.scene_model.project`); :func:`draw_grasps` draws them with Pillow on the view's RGB image, upscaled
+so that markers stay legible on a
 320 x 240 render.
 
 Labels (:data:`LABELS`): with a rollouts table, a grasp is coloured by its outcome code (5 success green,
@@ -26,7 +27,7 @@ from PIL import Image, ImageDraw, ImageFont
 
 from graspgen.io.arrow import column_array
 from graspgen.io.scenes import SceneRecord
-from graspgen.sim.grippers import GripperSpec, get_gripper
+from graspgen.sim.grippers import GripperSpec, load_gripper
 from graspgen.sim.scene_model import Camera, project, transform_points
 
 __all__ = [
@@ -68,9 +69,9 @@ LABELS: dict[str, dict[int, tuple[str, tuple[int, int, int]]]] = {
         2: ("collision_with_clutter", _PINK_RED),
     },
 }
-"""Label source -> code -> (name, RGB colour). Rollout codes are the outcome codes (DESIGN section 5.4), pre-filter
-codes those of :mod:`graspgen.sim.prefilter`. The order of each dict is the priority: first in the legend, first served by
-:func:`choose_grasps`, drawn last (on top)."""
+"""Label source -> code -> (name, RGB colour). Rollout codes are the outcome codes (ARCHITECTURE.md, Conventions),
+pre-filter codes those of :mod:`graspgen.sim.prefilter`. The order of each dict is the priority: first in the legend,
+first served by :func:`choose_grasps`, drawn last (on top)."""
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -434,7 +435,7 @@ def grasp_picture(
     chosen = chosen[np.argsort([-rank.get(int(codes[i]), len(rank)) for i in chosen], kind="stable")]
     if gripper is None:
         name = grasps.column("gripper")[0].as_py() if len(grasps) else "robotiq_2f85"
-        gripper = get_gripper(name)
+        gripper = load_gripper(name)
     T = column_array(grasps, "pose_world", (4, 4))[chosen]
     opening = grasps.column("open_width").to_numpy()[chosen]
     segments = grasp_marker_segments(T, opening, gripper)

@@ -1,8 +1,8 @@
 """Looking at rollouts: re-run one grasp of a scene and render frames of it, to see why it failed.
 
 :func:`rollout_movie` re-runs a grasp exactly as the rollouts stage did (the same compiled scene from
-:func:`graspgen.sim.rollouts.scene_simulator`, the same :class:`graspgen.sim.lift.LiftParams`), records the state at every
-rule check through the simulator's ``observer`` hook, keeps a few of those states (:func:`pick_frames`: the start,
+:func:`graspgen.sim.rollouts.scene_simulator`, the same :class:`graspgen.sim.lift.LiftParams`), records the state at
+every rule check through the simulator's ``observer`` hook, keeps a few of those states (:func:`pick_frames`: the start,
 the end of every phase reached, then evenly spaced ones) and renders them from a side camera
 (:func:`side_cameras`) with MuJoCo's renderer. :func:`save_movie` writes a PNG strip or an animated GIF with the
 outcome in the title. ``gen show rollout SCENE_ID GRASP_ID -o file.png|gif`` is the command line for it.
@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 
 from graspgen.io.arrow import column_array  # noqa: E402
-from graspgen.sim.grippers import attach_gripper, get_gripper  # noqa: E402
+from graspgen.sim.grippers import attach_gripper, load_gripper  # noqa: E402
 from graspgen.sim.lift import LiftParams, LiftSimulator, RolloutResult  # noqa: E402
 from graspgen.sim.rollouts import scene_simulator  # noqa: E402
 from graspgen.sim.scene_grasps import PREFILTER_NAMES  # noqa: E402
@@ -237,7 +237,7 @@ def rollout_movie(
     spec = scene_spec(scene, records, visual=True)
     spec.visual.global_.offwidth = max(int(spec.visual.global_.offwidth), size[0])
     spec.visual.global_.offheight = max(int(spec.visual.global_.offheight), size[1])
-    attach_gripper(spec, get_gripper(gripper))
+    attach_gripper(spec, load_gripper(gripper))
     model = spec.compile()
     # The first side camera whose line of sight to the grasp point is clear (a neighbour may hide the grasp).
     data = mujoco.MjData(model)

@@ -1,0 +1,269 @@
+"""Step 5 of mesh preparation: convex decomposition with CoACD (MuJoCo collides convex hulls), and its cache.
+
+:func:`convex_decomposition` splits a mesh in m into convex parts, each ``(vertices (v, 3) float64 m, faces
+(f, 3) int32)`` in the mesh frame. Decompositions can be cached on disk as ``coacd-<sha256>.npz``, keyed by the
+mesh bytes, the :class:`CoacdParams` and the CoACD version.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import importlib.metadata
+import json
+import logging
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import coacd
+import numpy as np
+import trimesh
+
+from graspgen.geometry.mesh_io import _check_mesh, _label
+from graspgen.validation import check, check_instance, check_number, check_positive_int
+
+__all__ = ["CoacdParams", "convex_decomposition"]
+
+_log = logging.getLogger(__name__)
+
+
+# Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss.
+_COACD_CACHE_FORMAT = 1
+
+# A mesh whose volume is within this fraction of its hull's volume is treated as convex.
+_CONVEX_VOLUME_TOLERANCE = 1e-6
+
+# CoACD parts below this fraction of the hull volume are slivers that only make MuJoCo's mesh compiler complain.
+_MIN_PART_VOLUME_RATIO = 1e-6
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+@dataclass(frozen=True)
+class CoacdParams:
+    """Settings of the CoACD convex decomposition (passed straight to ``coacd.run_coacd``)."""
+
+    threshold: float = 0.08
+    """Concavity threshold, dimensionless in (0, 1]: lower gives more, tighter parts."""
+
+    max_convex_hull: int = 16
+    """Upper bound on the number of parts; -1 means no limit."""
+
+    preprocess_resolution: int = 30
+    """Voxel resolution (cells per axis) of the manifold pre-processing of non-watertight input."""
+
+    resolution: int = 1000
+    """Number of surface samples CoACD uses to measure concavity."""
+
+    mcts_iterations: int = 50
+    """Monte-Carlo tree search iterations per cut."""
+
+    mcts_depth: int = 3
+    """Maximum depth of the Monte-Carlo tree search (cuts looked ahead)."""
+
+    mcts_nodes: int = 20
+    """Child nodes expanded per Monte-Carlo tree search node."""
+
+    seed: int = 0
+    """CoACD's own random seed; the decomposition is a pure function of mesh, settings and this seed."""
+
+    refine_excess: float = 0.1
+    """If the parts' total volume exceeds the mesh's by more than this fraction, they bridge a concavity the
+    gripper could reach (a thin-walled cup or bowl: parts filling its cavity make every grasp on its rim collide),
+    so the mesh is decomposed once more with a quarter of the threshold and four times ``max_convex_hull``, and
+    the tighter result kept. 0 turns this off."""
+
+    def __post_init__(self) -> None:
+        check_number("threshold", self.threshold, low=0.0, high=1.0, low_open=True)
+        check_number("refine_excess", self.refine_excess, low=0.0)
+        hulls = self.max_convex_hull
+        check("max_convex_hull", _is_int(hulls) and (hulls >= 1 or hulls == -1), "be a positive integer or -1", hulls)
+        check_positive_int("preprocess_resolution", self.preprocess_resolution)
+        check_positive_int("resolution", self.resolution)
+        check_positive_int("mcts_iterations", self.mcts_iterations)
+        check_positive_int("mcts_depth", self.mcts_depth)
+        check_positive_int("mcts_nodes", self.mcts_nodes)
+        check("seed", _is_int(self.seed) and 0 <= self.seed < 2**31, "be an integer in [0, 2**31)", self.seed)
+
+    def to_json(self) -> str:
+        """Canonical JSON of the settings (sorted keys), used in the CoACD cache key."""
+        return json.dumps(dataclasses.asdict(self), sort_keys=True)
+
+
+def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Split a mesh into convex parts for collision.
+
+    A watertight mesh whose volume equals its convex hull's within 1e-6 (relative) is already convex; CoACD
+    would only re-approximate it, so its hull is returned as the single part. Otherwise CoACD runs with
+    ``params``; each part is replaced by its own convex hull (CoACD's output is not always exactly convex and
+    MuJoCo needs it to be), parts below 1e-6 of the hull volume are dropped, and the rest are sorted by
+    centroid (x, then y, then z) and vertex count so that the order does not depend on CoACD internals. If
+    every part is dropped, the mesh's convex hull is the single part.
+
+    Parameters
+    ----------
+    mesh
+        Repaired mesh in m.
+    params
+        CoACD settings.
+
+    Returns
+    -------
+    list of (vertices, faces)
+        ``vertices (v, 3) float64`` in m, mesh frame; ``faces (f, 3) int32``, outward-wound.
+    """
+    _check_mesh(mesh, "mesh")
+    check_instance("params", params, CoacdParams)
+    hull = mesh.convex_hull
+    if _is_convex(mesh, hull):
+        return [_part_arrays(hull)]
+    raw = _run_coacd(mesh, params)
+    parts = [_convex_part(vertices, faces) for vertices, faces in raw]
+    min_volume = _MIN_PART_VOLUME_RATIO * hull.volume
+    kept = [part for part in parts if part is not None and part.volume > min_volume]
+    if not kept:
+        _log.warning("%s: CoACD returned no usable part, using the convex hull", _label(mesh))
+        return [_part_arrays(hull)]
+    result = [_part_arrays(part) for part in _sorted_parts(kept)]
+    excess = _volume_excess(mesh, kept)
+    if params.refine_excess > 0 and excess > params.refine_excess:
+        finer = dataclasses.replace(
+            params,
+            threshold=params.threshold / 4,
+            max_convex_hull=-1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull,
+            refine_excess=0.0,
+        )
+        refined = convex_decomposition(mesh, finer)
+        refined_excess = _volume_excess(mesh, [trimesh.Trimesh(v, f) for v, f in refined])
+        _log.info("%s: parts exceed the volume by %.0f%%; refined: %.0f%%", _label(mesh), 100 * excess,
+                  100 * refined_excess)
+        if refined_excess < excess:
+            return refined
+    return result
+
+
+def _volume_excess(mesh: trimesh.Trimesh, parts: list[trimesh.Trimesh]) -> float:
+    """How much the parts' summed volume exceeds the mesh's, as a fraction (0 for an open mesh: not measurable)."""
+    if not mesh.is_watertight or mesh.volume <= 0:
+        return 0.0
+    return float(sum(p.volume for p in parts) / mesh.volume - 1.0)
+
+
+def _is_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh) -> bool:
+    if not (mesh.is_watertight and mesh.is_winding_consistent):
+        return False
+    return abs(hull.volume - mesh.volume) <= _CONVEX_VOLUME_TOLERANCE * abs(hull.volume)
+
+
+def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams) -> list:
+    # CoACD logs every iteration to stdout by default, which would drown the pipeline's own output.
+    coacd.set_log_level("error")
+    return coacd.run_coacd(
+        coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
+        threshold=params.threshold,
+        max_convex_hull=params.max_convex_hull,
+        preprocess_mode="auto",
+        preprocess_resolution=params.preprocess_resolution,
+        resolution=params.resolution,
+        mcts_nodes=params.mcts_nodes,
+        mcts_iterations=params.mcts_iterations,
+        mcts_max_depth=params.mcts_depth,
+        seed=params.seed,
+    )
+
+
+def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh | None:
+    if len(vertices) < 4:
+        return None
+    try:
+        return trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces), process=False).convex_hull
+    except Exception:  # qhull rejects flat point sets; such a part has no volume anyway
+        return None
+
+
+def _sorted_parts(parts: list[trimesh.Trimesh]) -> list[trimesh.Trimesh]:
+    centroids = np.array([part.vertices.mean(axis=0) for part in parts])
+    counts = np.array([len(part.vertices) for part in parts])
+    order = np.lexsort((counts, centroids[:, 2], centroids[:, 1], centroids[:, 0]))
+    return [parts[i] for i in order]
+
+
+def _part_arrays(part: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    return (
+        np.ascontiguousarray(part.vertices, dtype=np.float64),
+        np.ascontiguousarray(part.faces, dtype=np.int32),
+    )
+
+
+def _coacd_cache_key(mesh: trimesh.Trimesh, params: CoacdParams) -> str:
+    digest = hashlib.sha256()
+    vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(mesh.faces, dtype=np.int32)
+    header = {
+        "format": _COACD_CACHE_FORMAT,
+        "coacd": _package_version("coacd"),
+        "vertices": list(vertices.shape),
+        "faces": list(faces.shape),
+    }
+    digest.update(json.dumps(header, sort_keys=True).encode())
+    digest.update(vertices.tobytes())
+    digest.update(faces.tobytes())
+    digest.update(params.to_json().encode())
+    return digest.hexdigest()
+
+
+def _package_version(name: str) -> str:
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def _cached_convex_decomposition(
+    mesh: trimesh.Trimesh, params: CoacdParams, cache_dir: Path | None
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    if cache_dir is None:
+        return convex_decomposition(mesh, params)
+    path = cache_dir / f"coacd-{_coacd_cache_key(mesh, params)}.npz"
+    parts = _read_parts(path)
+    if parts is not None:
+        return parts
+    parts = convex_decomposition(mesh, params)
+    _write_parts(path, parts)
+    return parts
+
+
+def _read_parts(path: Path) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """Parts stored at ``path``, or None when absent or unreadable (a bad entry is recomputed, not fatal)."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            count = int(data["count"])
+            return [
+                (data[f"vertices_{i}"].astype(np.float64), data[f"faces_{i}"].astype(np.int32)) for i in range(count)
+            ]
+    except Exception as exc:
+        _log.warning("%s: unreadable CoACD cache entry, recomputing (%s)", path, exc)
+        return None
+
+
+def _write_parts(path: Path, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {"count": np.array(len(parts))}
+    for i, (vertices, faces) in enumerate(parts):
+        arrays[f"vertices_{i}"] = vertices
+        arrays[f"faces_{i}"] = faces
+    # Same folder as the target so os.replace is an atomic rename: a concurrent reader sees all or nothing.
+    handle = tempfile.NamedTemporaryFile(dir=path.parent, prefix=path.name + ".", suffix=".tmp", delete=False)
+    try:
+        with handle:
+            np.savez(handle, **arrays)
+        os.replace(handle.name, path)
+    except BaseException:
+        Path(handle.name).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,448 @@
+"""Step 6 of mesh preparation: the poses in which an object rests on a table, checked in a short MuJoCo drop.
+
+:func:`stable_poses` takes the quasi-static resting faces of the convex hull, groups them into pose classes and
+drops each 1 mm onto a plane (:func:`build_settle_model`, :func:`settle_pose`) to keep the pose it settles into.
+Lengths in m, angles in rad, times in s, speeds in m/s and rad/s; poses are 4x4 mesh-frame-to-world transforms
+resting on z = 0. Randomness only ever comes from the ``numpy.random.Generator`` passed in.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import trimesh
+import trimesh.poses
+
+from graspgen.errors import InputError, SettingsError
+from graspgen.geometry.mass import MassProperties
+from graspgen.geometry.mesh_io import _check_mesh, _label
+from graspgen.validation import check_bool, check_instance, check_number, check_positive_int, check_rng
+
+__all__ = ["StablePoseParams", "SettleResult", "resting_transform", "build_settle_model", "settle_pose", "stable_poses"]
+
+_log = logging.getLogger(__name__)
+
+
+# Drop height for the settle check: enough that no contact starts in penetration, small enough not to bounce.
+_SETTLE_DROP_HEIGHT = 1e-3  # m
+
+# After settling, an object moving slower than this has not toppled. The limits are loose on purpose: a
+# faceted solid of revolution on its side (a can, a cone) keeps rolling slowly after the 1 mm drop because
+# nothing but facet edges resists rolling, yet it is resting on its side; its settled face is taken as its pose.
+# A body still faster than this after settle_time is tumbling off its pose.
+_REST_LINEAR_SPEED = 2e-2  # m/s
+_REST_ANGULAR_SPEED = 0.3  # rad/s
+
+# Candidate normals from different centre-of-mass samples closer than this are the same face; trimesh itself
+# rounds normals to 3 decimals for the same purpose.
+_SAME_FACE_ANGLE = 1e-3  # rad
+# Candidate poses whose centre of mass rests at heights within this are one pose class (see
+# _select_pose_classes): a cylinder's side facets, a box's opposite faces.
+_SAME_HEIGHT = 5e-4  # m
+
+
+def _check_parts(parts: object, name: str) -> None:
+    if len(parts) == 0:
+        raise SettingsError(f"{name}: needs at least one convex part")
+    for i, part in enumerate(parts):
+        vertices, faces = part
+        if np.ndim(vertices) != 2 or np.shape(vertices)[1] != 3 or np.ndim(faces) != 2 or np.shape(faces)[1] != 3:
+            raise SettingsError(f"{name}[{i}]: must be (vertices (v, 3), faces (f, 3))")
+
+
+@dataclass(frozen=True)
+class StablePoseParams:
+    """Settings of the stable-pose search and of its MuJoCo settle check."""
+
+    min_probability: float = 0.02
+    """Pose classes less probable than this (quasi-static drop probability, in [0, 1)) are ignored. A class is
+    the candidates with the same centre-of-mass height (a cylinder's side facets), so symmetric shapes keep
+    their probable poses however finely they are faceted."""
+
+    max_poses: int = 8
+    """At most this many poses are returned, the most probable first."""
+
+    settle_check: bool = True
+    """Drop every candidate 1 mm onto a plane in MuJoCo and keep the pose it settles into."""
+
+    settle_time: float = 1.0
+    """Simulated time of one settle check, in s."""
+
+    max_tilt: float = 0.1
+    """Angle in rad: a settled pose within this of a candidate (or of another pose) is the same pose."""
+
+    timestep: float = 0.002
+    """MuJoCo timestep of the settle check, in s."""
+
+    friction: float = 0.8
+    """Sliding friction coefficient (dimensionless) between object and plane in the settle check."""
+
+    com_sigma: float = 0.0
+    """Standard deviation in m of a Gaussian perturbation of the centre of mass for the quasi-static analysis
+    (models uncertain density). 0 uses the exact centre of mass and draws nothing from ``rng``."""
+
+    com_samples: int = 1
+    """Number of perturbed centres of mass averaged when ``com_sigma > 0``."""
+
+    def __post_init__(self) -> None:
+        check_number("min_probability", self.min_probability, low=0.0, high=1.0, high_open=True)
+        check_positive_int("max_poses", self.max_poses)
+        check_bool("settle_check", self.settle_check)
+        check_number("settle_time", self.settle_time, low=0.0, low_open=True)
+        check_number("max_tilt", self.max_tilt, low=0.0, high=math.pi, low_open=True)
+        check_number("timestep", self.timestep, low=0.0, high=0.1, low_open=True)
+        if self.settle_time < self.timestep:
+            raise SettingsError(f"settle_time: must be at least timestep ({self.timestep}), got {self.settle_time}")
+        check_number("friction", self.friction, low=0.0, low_open=True)
+        check_number("com_sigma", self.com_sigma, low=0.0)
+        check_positive_int("com_samples", self.com_samples)
+
+
+def resting_transform(hull_vertices: np.ndarray, center_of_mass: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Transform that rests an object on z = 0 on the hull face with outward ``normal``.
+
+    The rotation follows trimesh's convention (rows x, y, z with z = -normal), so a pose depends only on its
+    resting face. The translation puts the centre of mass above the world origin and the lowest hull vertex
+    on z = 0.
+
+    Parameters
+    ----------
+    hull_vertices
+        ``(v, 3) float`` convex hull vertices, mesh frame, m.
+    center_of_mass
+        ``(3,) float`` centre of mass, mesh frame, m.
+    normal
+        ``(3,) float`` outward normal (mesh frame) of the face the object rests on.
+
+    Returns
+    -------
+    (4, 4) float64
+        Mesh-frame-to-world homogeneous transform.
+    """
+    z = -np.asarray(normal, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    x = np.array([-z[1], z[0], 0.0])
+    if np.linalg.norm(x) < 1e-9:
+        x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    x = x / np.linalg.norm(x)
+    y = np.cross(z, x)
+    y = y / np.linalg.norm(y)
+    rotation = np.array([x, y, z])
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    com = rotation @ np.asarray(center_of_mass, dtype=np.float64)
+    lowest = float((np.asarray(hull_vertices, dtype=np.float64) @ rotation[2]).min())
+    transform[:3, 3] = (-com[0], -com[1], -lowest)
+    return transform
+
+
+def build_settle_model(
+    parts: list[tuple[np.ndarray, np.ndarray]] | tuple, mass: MassProperties, params: StablePoseParams
+) -> mujoco.MjModel:
+    """MuJoCo model of the object as a free body of convex mesh geoms above a ground plane.
+
+    Mass and inertia come from ``mass`` (not from the geoms), so the dynamics match the analysis. The body
+    frame is the mesh frame. Options: ``params.timestep``, elliptic friction cones, impratio 10.
+    """
+    _check_parts(parts, "parts")
+    spec = mujoco.MjSpec()
+    spec.modelname = "settle"
+    spec.option.timestep = params.timestep
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.impratio = 10.0
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
+    friction = [params.friction, 0.005, 0.0001]
+    spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 1.0], friction=friction)
+    body = spec.worldbody.add_body(name="object")
+    body.add_freejoint(name="free")
+    body.explicitinertial = True
+    body.mass = mass.mass
+    body.ipos = mass.center_of_mass
+    inertia = mass.inertia
+    body.fullinertia = [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
+    for i, (vertices, faces) in enumerate(parts):
+        spec.add_mesh(
+            name=f"part_{i}",
+            uservert=np.asarray(vertices, dtype=np.float64).ravel().tolist(),
+            userface=np.asarray(faces, dtype=np.int32).ravel().tolist(),
+        )
+        body.add_geom(name=f"part_{i}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"part_{i}", friction=friction)
+    return spec.compile()
+
+
+@dataclass(frozen=True, eq=False)
+class SettleResult:
+    """Outcome of one MuJoCo drop (see :func:`settle_pose`)."""
+
+    rotation: np.ndarray
+    """``(3, 3) float64`` final mesh-to-world rotation."""
+
+    position: np.ndarray
+    """``(3,) float64`` final position of the mesh-frame origin, m."""
+
+    linear_speed: float
+    """Final speed of the mesh-frame origin, m/s."""
+
+    angular_speed: float
+    """Final angular speed, rad/s."""
+
+    @property
+    def at_rest(self) -> bool:
+        """The object stopped moving and the state is finite."""
+        return bool(
+            np.isfinite(self.rotation).all()
+            and self.linear_speed < _REST_LINEAR_SPEED
+            and self.angular_speed < _REST_ANGULAR_SPEED
+        )
+
+
+def settle_pose(
+    model: mujoco.MjModel, transform: np.ndarray, params: StablePoseParams, data: mujoco.MjData | None = None
+) -> SettleResult:
+    """Drop the object from ``transform`` lifted by 1 mm and simulate ``params.settle_time``.
+
+    Parameters
+    ----------
+    model
+        From :func:`build_settle_model`.
+    transform
+        ``(4, 4) float`` mesh-to-world pose resting on z = 0.
+    params
+        Only ``settle_time`` is read here (timestep and friction are baked into ``model``).
+    data
+        Reused scratch state; it is fully reset, so reuse never changes the result.
+    """
+    data = mujoco.MjData(model) if data is None else data
+    mujoco.mj_resetData(model, data)
+    transform = np.asarray(transform, dtype=np.float64)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(transform[:3, :3]).ravel())
+    data.qpos[:3] = transform[:3, 3] + (0.0, 0.0, _SETTLE_DROP_HEIGHT)
+    data.qpos[3:7] = quat
+    steps = max(1, int(round(params.settle_time / model.opt.timestep)))
+    mujoco.mj_step(model, data, nstep=steps)
+    body = model.body("object").id
+    return SettleResult(
+        rotation=np.array(data.xmat[body], dtype=np.float64).reshape(3, 3),
+        position=np.array(data.xpos[body], dtype=np.float64),
+        linear_speed=float(np.linalg.norm(data.qvel[:3])),
+        angular_speed=float(np.linalg.norm(data.qvel[3:6])),
+    )
+
+
+def stable_poses(
+    mesh: trimesh.Trimesh,
+    mass: MassProperties,
+    parts: list[tuple[np.ndarray, np.ndarray]] | tuple,
+    params: StablePoseParams,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses in which the object rests on a table, with the probability of landing in each.
+
+    Candidates come from trimesh's quasi-static toppling analysis of the convex hull
+    (``trimesh.poses.compute_stable_poses`` with ``sigma=0, n_samples=1`` and a fixed seed, which draws
+    nothing random). With ``params.com_sigma > 0`` the centre of mass is perturbed ``com_samples`` times using
+    ``rng`` (the only use of ``rng``) and the probabilities averaged. Candidates are grouped into classes of
+    equal centre-of-mass height (one physical pose split over the facets of a faceted solid of revolution);
+    classes below ``min_probability`` are ignored (if all are, the most probable is kept) and at most
+    ``max_poses`` candidates are kept round-robin over the classes (:func:`_select_pose_classes`).
+
+    Settle rule (``settle_check``): each candidate is dropped 1 mm in MuJoCo (convex ``parts``, mass and
+    inertia from ``mass``) and the hull face it ends up resting on is found. A candidate that does not come to
+    rest within ``settle_time`` is dropped. One that settles is *replaced by its settled pose*: if that tilts
+    more than ``max_tilt`` from the candidate, the candidate was not really stable and its probability moves
+    to where it went. Settled poses whose resting normals are within ``max_tilt`` of each other are merged
+    (probabilities add, the more probable one's pose is kept), so an unstable candidate that topples onto
+    another pose adds to it. If every candidate is dropped, the settled pose of the most probable one is
+    returned alone. One MuJoCo model is compiled per call and reset per candidate.
+
+    At most ``max_poses`` poses are returned, most probable first, probabilities renormalised to sum to 1.
+
+    Parameters
+    ----------
+    mesh
+        Repaired mesh in m.
+    mass
+        Its mass properties.
+    parts
+        Convex parts from :func:`~graspgen.geometry.convex.convex_decomposition` (only used by the settle check).
+    params
+        Settings.
+    rng
+        Random generator; only drawn from when ``params.com_sigma > 0``.
+
+    Returns
+    -------
+    transforms : (n, 4, 4) float64
+        Mesh-to-world transforms resting the object on z = 0 (lowest hull vertex at z = 0, centre of mass above
+        the origin), n >= 1.
+    probabilities : (n,) float64
+        Sum to 1, descending.
+    """
+    _check_mesh(mesh, "mesh")
+    check_rng("rng", rng)
+    check_instance("params", params, StablePoseParams)
+    hull = mesh.convex_hull
+    com = np.asarray(mass.center_of_mass, dtype=np.float64)
+    normals, probs = _candidate_normals(mesh, hull, com, params, rng)
+    normals, probs = _select_pose_classes(hull, com, normals, probs, params)
+    if params.settle_check:
+        normals, probs = _settle_and_merge(hull, mass, parts, normals, probs, params, _label(mesh))
+    order = _descending(normals, probs)[: params.max_poses]
+    normals, probs = normals[order], probs[order]
+    transforms = np.stack([resting_transform(hull.vertices, com, n) for n in normals])
+    return transforms, probs / probs.sum()
+
+
+def _candidate_normals(
+    mesh: trimesh.Trimesh,
+    hull: trimesh.Trimesh,
+    com: np.ndarray,
+    params: StablePoseParams,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Outward resting-face normals ``(k, 3)`` and their probabilities ``(k,)`` averaged over COM samples."""
+    samples = _com_samples(hull, com, params, rng, _label(mesh))
+    normals: list[np.ndarray] = []
+    probs: list[np.ndarray] = []
+    for sample in samples:
+        transforms, sample_probs = trimesh.poses.compute_stable_poses(
+            mesh, center_mass=sample, sigma=0.0, n_samples=1, threshold=0.0, seed=0
+        )
+        normals.append(-np.asarray(transforms, dtype=np.float64).reshape(-1, 4, 4)[:, 2, :3])
+        probs.append(np.asarray(sample_probs, dtype=np.float64) / len(samples))
+    normals_all, probs_all = np.concatenate(normals), np.concatenate(probs)
+    if len(samples) == 1:
+        return normals_all, probs_all  # trimesh has already merged equal faces
+    order = _descending(normals_all, probs_all)
+    return _merge_close(normals_all[order], probs_all[order], _SAME_FACE_ANGLE)
+
+
+def _com_samples(
+    hull: trimesh.Trimesh, com: np.ndarray, params: StablePoseParams, rng: np.random.Generator, label: str
+) -> list[np.ndarray]:
+    if not _inside_hull(hull, com):
+        # compute_stable_poses rejection-samples until the COM is strictly inside and would never return.
+        raise InputError(f"{label}: centre of mass {com} is not inside the convex hull")
+    if params.com_sigma == 0.0:
+        return [com]
+    samples: list[np.ndarray] = []
+    for _ in range(100 * params.com_samples):
+        candidate = com + rng.normal(0.0, params.com_sigma, size=3)
+        if _inside_hull(hull, candidate):
+            samples.append(candidate)
+            if len(samples) == params.com_samples:
+                break
+    return samples or [com]
+
+
+def _inside_hull(hull: trimesh.Trimesh, point: np.ndarray) -> bool:
+    # The same strict test compute_stable_poses uses, so a point passing here is accepted there.
+    dots = np.einsum("ij,ij->i", point - hull.triangles_center, hull.face_normals)
+    return bool(np.all(dots < 0.0))
+
+
+def _select_pose_classes(
+    hull: trimesh.Trimesh, com: np.ndarray, normals: np.ndarray, probs: np.ndarray, params: StablePoseParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the candidates of probable pose *classes*, at most ``max_poses``, with class-faithful probabilities.
+
+    A faceted solid of revolution splits one physical pose over many hull faces: a 64-sided cylinder lying on
+    its side gets 64 candidates of ~1 % each, so a per-face threshold would keep only its two end caps and say
+    it always stands upright. Candidates whose centre of mass sits at the same height above the table
+    (within ``_SAME_HEIGHT``) form one class; the threshold applies to a class's total probability, and the
+    ``max_poses`` slots are filled round-robin over the classes, most probable first. Each kept pose carries
+    its class's probability divided by the number of its members kept, so the distribution over classes is
+    exactly the quasi-static one.
+    """
+    order = _descending(normals, probs)
+    normals, probs = normals[order], probs[order]
+    heights = (hull.vertices @ normals.T).max(axis=0) - normals @ com
+    labels = np.round(heights / _SAME_HEIGHT).astype(np.int64)
+    classes: dict[int, list[int]] = {}
+    for i, label in enumerate(labels):  # probability order, so each class lists its members best first
+        classes.setdefault(int(label), []).append(i)
+    ranked = sorted(classes.values(), key=lambda members: (-probs[members].sum(), members[0]))
+    kept = [m for m in ranked if probs[m].sum() >= params.min_probability] or ranked[:1]
+    picked: list[list[int]] = [[] for _ in kept]
+    for depth in range(max(len(m) for m in kept)):
+        for slot, members in enumerate(kept):
+            if depth < len(members) and sum(map(len, picked)) < params.max_poses:
+                picked[slot].append(members[depth])
+    index = [i for slot in picked for i in slot]
+    share = [probs[kept[slot]].sum() / len(p) for slot, p in enumerate(picked) for _ in p]
+    return normals[index], np.asarray(share, dtype=np.float64)
+
+
+def _descending(normals: np.ndarray, probs: np.ndarray) -> np.ndarray:
+    """Indices sorting by probability, descending; ties broken by the normal so the order is total."""
+    return np.lexsort((normals[:, 2], normals[:, 1], normals[:, 0], -probs))
+
+
+def _settle_and_merge(
+    hull: trimesh.Trimesh,
+    mass: MassProperties,
+    parts: list[tuple[np.ndarray, np.ndarray]] | tuple,
+    normals: np.ndarray,
+    probs: np.ndarray,
+    params: StablePoseParams,
+    label: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    model = build_settle_model(parts, mass, params)
+    data = mujoco.MjData(model)
+    com = np.asarray(mass.center_of_mass)
+    settled_normals: list[np.ndarray] = []
+    settled_probs: list[float] = []
+    first_settled: np.ndarray | None = None
+    for normal, prob in zip(normals, probs, strict=True):
+        result = settle_pose(model, resting_transform(hull.vertices, com, normal), params, data)
+        settled = _resting_face_normal(hull, result.rotation) if np.isfinite(result.rotation).all() else normal
+        if first_settled is None:
+            first_settled = settled
+        if not result.at_rest:
+            _log.debug("%s: pose %s did not come to rest, dropped", label, normal)
+            continue
+        if _angle(settled, normal) > params.max_tilt:
+            _log.debug("%s: pose %s settled into %s", label, normal, settled)
+        settled_normals.append(settled)
+        settled_probs.append(float(prob))
+    if not settled_normals:
+        return first_settled[None, :], np.ones(1)
+    return _merge_close(np.array(settled_normals), np.array(settled_probs), params.max_tilt)
+
+
+def _resting_face_normal(hull: trimesh.Trimesh, rotation: np.ndarray) -> np.ndarray:
+    """Outward normal (mesh frame) of the hull face pointing most nearly straight down under ``rotation``."""
+    down = -rotation[2]  # world -z expressed in the mesh frame
+    return np.array(hull.face_normals[int(np.argmax(hull.face_normals @ down))], dtype=np.float64)
+
+
+def _merge_close(normals: np.ndarray, probs: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge normals within ``angle`` (rad) of an earlier one, adding their probabilities.
+
+    Greedy in the given order, so with ``normals (k, 3)`` sorted most probable first each group is represented
+    by its most probable member. Returns the representatives ``(m, 3)`` and summed probabilities ``(m,)``.
+    """
+    unit = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+    cos_limit = math.cos(angle)
+    group = np.full(len(unit), -1)
+    representatives: list[int] = []
+    for i in range(len(unit)):
+        if group[i] >= 0:
+            continue
+        close = (group < 0) & (unit @ unit[i] >= cos_limit)
+        close[i] = True
+        group[close] = len(representatives)
+        representatives.append(i)
+    summed = np.zeros(len(representatives))
+    np.add.at(summed, group, probs)
+    return normals[representatives], summed
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    cos = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return math.acos(min(1.0, max(-1.0, cos)))

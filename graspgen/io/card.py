@@ -1,0 +1,468 @@
+"""The dataset card of a published dataset: ``card.json`` (the statistics and provenance as data) and ``card.md``.
+
+:func:`build_card` computes, from the files in a dataset folder, the counts per object and outcome, each label's
+summary and histogram (:func:`label_summary`) and the labels' correlations (:func:`card_stats`), draws the plots
+(:func:`graspgen.viz.plots.draw_plots`) and writes ``card.json`` and its Markdown rendering ``card.md``
+(:func:`render_card`, a pure function of card.json). What the files cannot tell (the shard keys, the config, the
+package versions, the data files' hashes) comes in as ``provenance`` and ``files``. :func:`report` renders a
+published card again from its folder.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import platform
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import yaml
+
+from graspgen.errors import InputError
+from graspgen.io.atomic import write_text_atomic
+from graspgen.io.dataset_table import FORMAT, OUTCOME_NAMES, dataset_dir, float_values
+from graspgen.io.files import sha256_file
+from graspgen.validation import check
+
+__all__ = [
+    "CARD_VERSION",
+    "LABEL_COLUMNS",
+    "MANAGED",
+    "CardSettings",
+    "add_file",
+    "build_card",
+    "card_stats",
+    "fmt",
+    "keys_digest",
+    "label_summary",
+    "package_versions",
+    "render_card",
+    "report",
+]
+
+LABEL_COLUMNS = ("robustness", "epsilon", "pfc", "min_closure_friction")
+"""Numeric labels the card summarises (those present)."""
+
+CORRELATED = ("robustness", "epsilon", "pfc")
+"""Labels whose pairwise correlations the card reports."""
+
+DISCRETE_LABEL_VALUES = 32
+"""A label with at most this many distinct values is counted per value (robustness and pfc of up to 31 copies, a
+friction grid), not binned."""
+
+CARD_VERSION = 2
+"""Bump when the card's content or the plots change: published folders are then re-rendered."""
+
+MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots")
+"""Subfolders of a dataset folder that the card owns: files there that it does not list are not part of the
+dataset, and :func:`build_card` removes them."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CardSettings:
+    """What the card and its plots read of the ``dataset`` config section (the same names and checks)."""
+
+    plots: bool = True
+    """Draw the card's plots (plots/*.png, with matplotlib)."""
+    histogram_bins: int = 20
+    """Bins of the label histograms (card and plots) for labels with more than 32 distinct values."""
+    example_scenes: int = 4
+    """Scenes in the examples contact sheet (the first ones by id that have RGB images)."""
+    example_grasps: int = 24
+    """At most this many grasps drawn per example scene, spread over the outcomes."""
+
+    def __post_init__(self) -> None:
+        check("histogram_bins", 1 <= self.histogram_bins <= 1000, "be in [1, 1000]", self.histogram_bins)
+        check("example_scenes", self.example_scenes >= 0, "be >= 0", self.example_scenes)
+        check("example_grasps", self.example_grasps >= 0, "be >= 0", self.example_grasps)
+
+
+def _num(x: float) -> float | None:
+    """A float for JSON: 6 significant digits (stable across summation orders), None when not finite."""
+    x = float(x)
+    return float(f"{x:.6g}") if math.isfinite(x) else None
+
+
+def label_summary(values: np.ndarray, bins: int, unit_range: bool) -> dict[str, Any]:
+    """Summary and histogram of one label's finite values.
+
+    A label with at most :data:`DISCRETE_LABEL_VALUES` distinct values (robustness of n copies, a friction grid)
+    gets one bar per value; otherwise ``bins`` equal bins over [0, 1] (``unit_range``) or over [min, max].
+    """
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    out: dict[str, Any] = {"n": int(len(v))}
+    if len(v) == 0:
+        return out
+    q = np.quantile(v, [0.05, 0.5, 0.95])
+    out.update(
+        mean=_num(v.mean()), std=_num(v.std()), min=_num(v.min()), p05=_num(q[0]), median=_num(q[1]),
+        p95=_num(q[2]), max=_num(v.max()),
+    )
+    distinct = np.unique(v)
+    if len(distinct) <= DISCRETE_LABEL_VALUES:
+        out["histogram"] = {"values": [_num(x) for x in distinct], "counts": [int((v == x).sum()) for x in distinct]}
+    else:
+        lo, hi = (0.0, 1.0) if unit_range else (float(v.min()), float(v.max()))
+        hi = hi if hi > lo else lo + 1.0
+        # Values on a bin edge (k/n fractions on edges k/bins) go to the bin above, whatever the edges' rounding.
+        nudged = np.minimum(v + 1e-9 * (hi - lo), hi)
+        counts, edges = np.histogram(nudged, bins=bins, range=(lo, hi))
+        out["histogram"] = {"edges": [_num(e) for e in edges], "counts": counts.astype(int).tolist()}
+    return out
+
+
+def _ranks(x: np.ndarray) -> np.ndarray:
+    """Ranks 1..n with ties given their average rank (as ``scipy.stats.rankdata``; scipy.stats takes 0.5 s to
+    import, and publish runs in the parent, in series with everything)."""
+    ranks = np.empty(len(x))
+    ranks[np.argsort(x, kind="stable")] = np.arange(1, len(x) + 1)
+    _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)
+    return (np.bincount(inverse, weights=ranks) / counts)[inverse]
+
+
+def _correlations(table: pa.Table) -> dict[str, Any]:
+    cols = [c for c in CORRELATED if c in table.column_names]
+    values = {c: float_values(table.column(c)) for c in cols}
+    pearson, spearman, counts = [], [], []
+    for a in cols:
+        rows_p, rows_s, rows_n = [], [], []
+        for b in cols:
+            ok = np.isfinite(values[a]) & np.isfinite(values[b])
+            x, y = values[a][ok], values[b][ok]
+            rows_n.append(int(ok.sum()))
+            if ok.sum() < 3 or x.std() == 0 or y.std() == 0:
+                rows_p.append(None)
+                rows_s.append(None)
+                continue
+            rows_p.append(_num(np.corrcoef(x, y)[0, 1]))
+            rows_s.append(_num(np.corrcoef(_ranks(x), _ranks(y))[0, 1]))
+        pearson.append(rows_p)
+        spearman.append(rows_s)
+        counts.append(rows_n)
+    return {"columns": cols, "n": counts, "pearson": pearson, "spearman": spearman}
+
+
+def _card_columns(schema: pa.Schema) -> list[str]:
+    """The columns the card statistics and plots read (not the heavy list columns)."""
+    want = {"scene_id", "grasp_id", "object_name", "object_index", "gripper", "outcome", "outcome_name",
+            "prefilter_code", "simulated", "pose_world", "open_width", *LABEL_COLUMNS, "robustness_n"}
+    return [n for n in schema.names if n in want]
+
+
+def card_stats(root: Path, files: Mapping[str, Any], settings: CardSettings) -> tuple[dict[str, Any], pa.Table]:
+    """Counts, label summaries and correlations of the dataset in ``root`` whose data files are ``files`` (relative
+    paths; the scenes and objects are those listed, not whatever else sits in the folder); also returns the table
+    read."""
+    schema = pq.read_schema(root / "grasps.parquet")
+    table = pq.read_table(root / "grasps.parquet", columns=_card_columns(schema))
+    outcome = table.column("outcome").to_numpy()
+    objects = np.asarray(table.column("object_name").to_pylist(), dtype=object)
+    scene_col = np.asarray(table.column("scene_id").to_pylist(), dtype=object)
+    scenes: dict[str, Any] = {}
+    for path in sorted(root / rel for rel in files if rel.startswith("scenes/")):
+        with h5py.File(path, "r") as f:
+            names = f.attrs["object_names"]
+            names = json.loads(names.decode() if isinstance(names, bytes) else names) if not isinstance(
+                names, np.ndarray) else names.tolist()
+            scenes[path.stem] = {
+                "grasps": int((scene_col == path.stem).sum()),
+                "objects": [str(n) for n in names],
+                "views": int(f["cameras/K"].shape[0]),
+            }
+    library = sorted(Path(rel).stem for rel in files if rel.startswith("objects/"))
+    per_object = {}
+    for name in library:
+        sel = objects == name
+        counts = [int(((outcome == c) & sel).sum()) for c in range(len(OUTCOME_NAMES))]
+        n = int(sel.sum())
+        per_object[name] = {
+            "scenes": sum(name in s["objects"] for s in scenes.values()),
+            "grasps": n,
+            "outcomes": counts,
+            "success_rate": _num(counts[5] / n) if n else None,
+        }
+    labels = {}
+    for col in LABEL_COLUMNS:
+        if col in table.column_names:
+            labels[col] = label_summary(
+                float_values(table.column(col)), settings.histogram_bins, col in ("robustness", "pfc")
+            )
+    stats = {
+        "counts": {
+            "grasps": len(table),
+            "scenes": len(scenes),
+            "views": sum(s["views"] for s in scenes.values()),
+            "objects": len(library),
+            "objects_with_grasps": int(sum(1 for o in per_object.values() if o["grasps"])),
+            "grippers": sorted(set(table.column("gripper").to_pylist())),
+        },
+        "outcomes": [
+            {"code": c, "name": name, "grasps": int((outcome == c).sum())} for c, name in enumerate(OUTCOME_NAMES)
+        ],
+        "objects": per_object,
+        "scenes": scenes,
+        "labels": labels,
+        "correlation": _correlations(table),
+    }
+    return stats, table
+
+
+def _schema_doc(schema: pa.Schema) -> list[dict[str, str]]:
+    return [
+        {
+            "name": f.name,
+            "type": str(f.type),
+            "description": (f.metadata or {}).get(b"description", b"").decode(),
+        }
+        for f in schema
+    ]
+
+
+def build_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, Any], settings: CardSettings) -> dict:
+    """Compute the statistics, draw the plots and write ``card.json`` and ``card.md`` in ``root``.
+
+    Parameters
+    ----------
+    root : Path
+        The dataset folder (grasps.parquet, scenes/, objects/ in place).
+    provenance : mapping
+        ``dataset_key``, ``tables``, ``left_out``, ``stages`` (version and keys per stage), ``versions``,
+        ``config``: what the data alone cannot tell.
+    files : mapping
+        ``{relative path: {"sha256", "bytes", ...}}`` of the data files (the plots are added here).
+    settings : CardSettings
+    """
+    stats, table = card_stats(root, files, settings)
+    files = dict(files)
+    plots = []
+    if settings.plots:
+        from graspgen.viz.plots import draw_plots  # matplotlib and the picture code only when plots are drawn
+
+        plots = draw_plots(root, table, stats, settings)
+        for rel in plots:
+            add_file(files, root, rel)
+    schema = pq.read_schema(root / "grasps.parquet")
+    card = {
+        "format": FORMAT,
+        "card_version": CARD_VERSION,
+        "dataset_key": provenance["dataset_key"],
+        "tables": list(provenance["tables"]),
+        **stats,
+        "left_out": dict(provenance["left_out"]),
+        "schema": _schema_doc(schema),
+        "plots": plots,
+        "files": {k: files[k] for k in sorted(files)},
+        "stages": provenance["stages"],
+        "versions": provenance["versions"],
+        "config": provenance["config"],
+    }
+    card = json.loads(json.dumps(card, allow_nan=False))  # what card.json holds is exactly what is rendered
+    write_text_atomic(root / "card.json", json.dumps(card, indent=1) + "\n")
+    write_text_atomic(root / "card.md", render_card(card))
+    _prune(root, card["files"])
+    return card
+
+
+def keys_digest(keys: Mapping[str, str]) -> str:
+    """First 16 hex digits of the sha256 of a stage's shard keys (``{task id: key}``) as compact, sorted-key JSON:
+    the text the engine's canonical JSON gives for such a mapping, so the card shows the same digest."""
+    text = json.dumps(dict(keys), sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def fmt(x: Any, digits: int = 3) -> str:
+    """A card cell: ``-`` for None, a float to ``digits`` significant digits, anything else as str."""
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        return f"{x:.{digits}g}"
+    return str(x)
+
+
+def render_card(card: Mapping[str, Any]) -> str:
+    """The Markdown dataset card of a ``card.json`` dict (a pure function of it)."""
+    c = card["counts"]
+    lines = ["# Dataset card", ""]
+    lines += [
+        f"A grasp dataset made by graspgen {card['versions'].get('graspgen', '?')}: {c['grasps']} grasps of "
+        f"{c['objects_with_grasps']} objects in {c['scenes']} scenes ({c['views']} camera views), gripper "
+        f"{', '.join(c['grippers']) or '-'}, each labelled by a simulated grasp-and-lift"
+        + (", perturbed copies (robustness, pfc)" if "robustness" in card["labels"] else "")
+        + (" and the Ferrari-Canny epsilon" if "epsilon" in card["labels"] else "")
+        + ".",
+        "",
+        f"Dataset key `{card['dataset_key']}` (the content key of `grasps.parquet`; it changes with any input, "
+        "parameter or stage version). Check the files with `gen validate <folder>`; read them with "
+        "`graspgen.io.reader.open_dataset(<folder>)`, pandas, polars, duckdb or h5py.",
+        "",
+        "## Files",
+        "",
+        "| path | what |",
+        "| --- | --- |",
+        f"| `grasps.parquet` | one row per grasp, {len(card['schema'])} columns (schema below), row groups of whole "
+        "scenes sorted by `scene_id`, `grasp_id` |",
+        f"| `scenes/<scene_id>.h5` | {c['scenes']} scenes: object names and settled poses, cameras (K, "
+        "camera-to-world), RGB, depth, segmentation, point clouds |",
+        f"| `objects/<name>.h5` | {c['objects']} objects: mesh, convex parts, mass properties, stable poses |",
+    ]
+    if any(k.startswith("acronym/") for k in card["files"]):
+        lines.append("| `acronym/<name>.h5` | each object's grasps in the ACRONYM format (mesh: `acronym/meshes/`) |")
+    lines += [
+        "| `config.yaml` | the resolved config (`gen run --config config.yaml` makes the dataset again) |",
+        "| `card.json` | this card as data, with every file's sha256 and every shard key |",
+        "",
+        "## Outcomes",
+        "",
+        "| code | outcome | grasps | share |",
+        "| ---: | --- | ---: | ---: |",
+    ]
+    total = max(c["grasps"], 1)
+    for o in card["outcomes"]:
+        lines.append(f"| {o['code']} | {o['name']} | {o['grasps']} | {100 * o['grasps'] / total:.1f}% |")
+    lines += [
+        "",
+        "## Per object",
+        "",
+        "| object | scenes | grasps | " + " | ".join(str(i) for i in range(len(OUTCOME_NAMES))) + " | success rate |",
+        "| --- | ---: | ---: | " + " | ".join("---:" for _ in OUTCOME_NAMES) + " | ---: |",
+    ]
+    for name, o in card["objects"].items():
+        rate = "-" if o["success_rate"] is None else f"{100 * o['success_rate']:.1f}%"
+        counts = " | ".join(str(n) for n in o["outcomes"])
+        lines.append(f"| {name} | {o['scenes']} | {o['grasps']} | {counts} | {rate} |")
+    lines += ["", "Columns 0-5 are the outcome codes above.", ""]
+    lines += ["## Labels", ""]
+    if card["labels"]:
+        lines += [
+            "Over the grasps where the label is defined (robustness and pfc: successful grasps).",
+            "",
+            "| label | n | mean | std | min | 5% | median | 95% | max |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for name, s in card["labels"].items():
+            cells = [fmt(s.get(k)) for k in ("mean", "std", "min", "p05", "median", "p95", "max")]
+            lines.append(f"| {name} | {s['n']} | " + " | ".join(cells) + " |")
+        lines.append("")
+        for name, s in card["labels"].items():
+            h = s.get("histogram")
+            if not h:
+                continue
+            if "values" in h:
+                bars = ", ".join(f"{fmt(v)}: {n}" for v, n in zip(h["values"], h["counts"]))
+            else:
+                e = h["edges"]
+                bars = ", ".join(f"[{fmt(e[i])}, {fmt(e[i + 1])}): {n}" for i, n in enumerate(h["counts"]))
+            lines.append(f"- `{name}` histogram: {bars}")
+        lines.append("")
+        corr = card["correlation"]
+        if len(corr["columns"]) >= 2:
+            cols = corr["columns"]
+            lines += [
+                "Correlation between labels (Spearman rank / Pearson; n = grasps where both are defined):",
+                "",
+                "| | " + " | ".join(cols) + " |",
+                "| --- |" + " ---: |" * len(cols),
+            ]
+            for i, a in enumerate(cols):
+                cells = [
+                    f"{fmt(corr['spearman'][i][j], 2)} / {fmt(corr['pearson'][i][j], 2)} (n {corr['n'][i][j]})"
+                    for j in range(len(cols))
+                ]
+                lines.append(f"| {a} | " + " | ".join(cells) + " |")
+            lines.append("")
+    else:
+        lines += ["No label columns beyond the outcome (the robustness and metrics stages were not joined).", ""]
+    if card["plots"]:
+        lines += ["## Plots", ""]
+        for rel in card["plots"]:
+            lines.append(f"![{Path(rel).stem}]({rel})")
+            lines.append("")
+    if card["left_out"]:
+        lines += ["## Scenes left out", ""]
+        lines += [f"- {sid}: {why}" for sid, why in card["left_out"].items()]
+        lines.append("")
+    lines += ["## Schema of grasps.parquet", "", "| column | type | description |", "| --- | --- | --- |"]
+    for f in card["schema"]:
+        lines.append(f"| `{f['name']}` | {f['type']} | {f['description']} |")
+    lines += [
+        "",
+        "## Provenance",
+        "",
+        "Every shard is named by its content key; `card.json` lists every key (`stages`).",
+        "",
+        "| stage | version | shards | keys digest |",
+        "| --- | --- | ---: | --- |",
+    ]
+    for stage, s in card["stages"].items():
+        digest = keys_digest(s["keys"])
+        lines.append(f"| {stage} | {s['version']} | {len(s['keys'])} | `{digest}` |")
+    lines += ["", "Package versions: " + ", ".join(f"{k} {v}" for k, v in card["versions"].items()) + ".", ""]
+    lines += [
+        "## Config",
+        "",
+        "```yaml",
+        yaml.safe_dump(card["config"], sort_keys=False, default_flow_style=None, width=110).rstrip(),
+        "```",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def package_versions() -> dict[str, str]:
+    """Python and the versions of the packages that shape the data (and this one)."""
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    for name in ("graspgen", "numpy", "scipy", "mujoco", "trimesh", "coacd", "manifold3d", "embreex", "h5py",
+                 "pyarrow", "joblib", "pillow", "matplotlib"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def add_file(files: dict[str, dict[str, Any]], root: Path, rel: str) -> None:
+    """Add ``root/rel`` to ``files`` (a card's file list) with its sha256 and size."""
+    path = root / rel
+    files[rel] = {"sha256": sha256_file(path), "bytes": path.stat().st_size}
+
+
+def _prune(root: Path, files: Mapping[str, Any]) -> None:
+    """Remove the files of :data:`MANAGED` folders that ``files`` does not list (those of an earlier dataset)."""
+    for sub in MANAGED:
+        folder = root / sub
+        if not folder.is_dir():
+            continue
+        for path in folder.iterdir():
+            rel = path.relative_to(root).as_posix()
+            if path.is_file() and rel not in files and not path.name.startswith("."):
+                path.unlink()
+
+
+def report(path: str | Path) -> Path:
+    """Render ``card.md``, ``card.json`` and the plots of a published dataset again; returns the card.md path.
+
+    The statistics and plots come from the data files; what the data cannot tell (keys, config, package versions,
+    the data files' hashes) is taken from the existing ``card.json``. So on an intact folder the result is the
+    published card, byte for byte.
+    """
+    root = dataset_dir(path)
+    try:
+        old = json.loads((root / "card.json").read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputError(f"{root / 'card.json'}: cannot read the card ({exc}); publish again with gen run") from None
+    fields = {f.name for f in dataclasses.fields(CardSettings)}
+    settings = CardSettings(**{k: v for k, v in old.get("config", {}).get("dataset", {}).items() if k in fields})
+    data_files = {k: v for k, v in old.get("files", {}).items() if not k.startswith("plots/")}
+    provenance = {k: old[k] for k in ("dataset_key", "tables", "left_out", "stages", "versions", "config")}
+    build_card(root, provenance, data_files, settings)
+    return root / "card.md"

@@ -1,0 +1,187 @@
+"""The plots of a dataset card (``plots/*.png``): outcomes, robustness, epsilon, their correlation, examples.
+
+:func:`draw_plots` draws them with matplotlib (Agg) from the card statistics (:func:`graspgen.io.card.card_stats`)
+and the table they were computed from; the bytes depend on the data and the matplotlib version only (no date, no
+software tag; the scatter jitter is seeded). The examples contact sheet draws grasps on the first view of the first
+scenes (:func:`graspgen.viz.grasp_view.grasp_picture`).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from graspgen.io.atomic import atomic_path
+from graspgen.io.card import CardSettings, fmt
+from graspgen.io.dataset_table import float_values
+
+__all__ = ["OUTCOME_COLOURS", "PLOT_FILES", "draw_plots"]
+
+PLOT_FILES = ("outcomes.png", "robustness.png", "epsilon.png", "correlation.png", "examples.png")
+"""The plots :func:`draw_plots` can write in ``plots/`` (each only when its data is there)."""
+
+OUTCOME_COLOURS = ("#960014", "#eb1e1e", "#ff6e82", "#fae100", "#ff8c00", "#28c83c")
+"""Plot colour by outcome code (as in :mod:`graspgen.viz.grasp_view`)."""
+
+
+def _save(fig: Any, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    # No "Software" entry, no date: the PNG bytes depend on the data and the matplotlib version only.
+    fig.savefig(buf, format="png", dpi=100, metadata={"Software": None})
+    plt.close(fig)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.getvalue())
+
+
+def _bars(ax: Any, summary: Mapping[str, Any], colour: str) -> None:
+    h = summary["histogram"]
+    if "values" in h:
+        values = np.asarray(h["values"], dtype=float)
+        step = np.min(np.diff(values)) if len(values) > 1 else 1.0
+        ax.bar(values, h["counts"], width=0.8 * step, color=colour, edgecolor="black", linewidth=0.5)
+    else:
+        e = np.asarray(h["edges"], dtype=float)
+        ax.bar(e[:-1], h["counts"], width=np.diff(e), align="edge", color=colour, edgecolor="black", linewidth=0.5)
+    ax.set_ylabel("grasps")
+
+
+def draw_plots(root: Path, table: pa.Table, stats: Mapping[str, Any], settings: CardSettings) -> list[str]:
+    """Write the card's PNGs in ``root/plots``; returns their paths relative to ``root``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.rcParams.update({"font.size": 9, "svg.hashsalt": "graspgen", "figure.max_open_warning": 0})
+    written = []
+    names = [o["name"] for o in stats["outcomes"]]
+    counts = [o["grasps"] for o in stats["outcomes"]]
+    objects = [k for k, v in stats["objects"].items() if v["grasps"]]
+
+    # Outcomes: overall bars and each object's mix.
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, max(3.5, 0.3 * len(objects) + 1.5)), width_ratios=[1, 1.3])
+    a.bar(range(len(names)), counts, color=OUTCOME_COLOURS, edgecolor="black", linewidth=0.5)
+    for i, n in enumerate(counts):
+        a.text(i, n, str(n), ha="center", va="bottom")
+    a.set_xticks(range(len(names)), [f"{i} {n}" for i, n in enumerate(names)], rotation=30, ha="right")
+    a.set_ylabel("grasps")
+    a.set_title(f"outcomes of {stats['counts']['grasps']} grasps")
+    left = np.zeros(len(objects))
+    for code, colour in enumerate(OUTCOME_COLOURS):
+        share = np.array([stats["objects"][o]["outcomes"][code] / stats["objects"][o]["grasps"] for o in objects])
+        b.barh(range(len(objects)), share, left=left, color=colour, edgecolor="black", linewidth=0.3,
+               label=f"{code} {names[code]}")
+        left += share
+    b.set_yticks(range(len(objects)), [f"{o} ({stats['objects'][o]['grasps']})" for o in objects])
+    b.invert_yaxis()
+    b.set_xlim(0, 1)
+    b.set_title("share of each object's grasps by outcome (grasps)")
+    b.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=3, fontsize=7, frameon=False)
+    fig.tight_layout()
+    _save(fig, root / "plots" / "outcomes.png")
+    written.append("plots/outcomes.png")
+
+    labels = stats["labels"]
+    if labels.get("robustness", {}).get("n") or labels.get("pfc", {}).get("n"):
+        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+        for ax, col, colour in zip(axes, ("robustness", "pfc"), ("#28c83c", "#3c78d8")):
+            s = labels.get(col, {})
+            if s.get("n"):
+                _bars(ax, s, colour)
+                ax.set_title(f"{col} of {s['n']} successful grasps (mean {s['mean']:.2f})")
+            else:
+                ax.set_title(f"no {col} labels")
+            ax.set_xlim(-0.05, 1.05)
+            ax.set_xlabel(col)
+        fig.tight_layout()
+        _save(fig, root / "plots" / "robustness.png")
+        written.append("plots/robustness.png")
+
+    if labels.get("epsilon", {}).get("n"):
+        eps = float_values(table.column("epsilon"))
+        outcome = table.column("outcome").to_numpy()
+        fig, ax = plt.subplots(figsize=(8, 3.6))
+        finite = np.isfinite(eps)
+        hi = float(eps[finite].max()) if finite.any() else 1.0
+        edges = np.linspace(0.0, hi if hi > 0 else 1.0, settings.histogram_bins + 1)
+        groups = [("success (5)", outcome == 5, "#28c83c"), ("slipped / no contact (3, 4)",
+                  (outcome == 3) | (outcome == 4), "#ff8c00"), ("collision (0-2)", outcome <= 2, "#eb1e1e")]
+        ax.hist([eps[g & finite] for _, g, _ in groups], bins=edges, stacked=True,
+                color=[c for _, _, c in groups], label=[n for n, _, _ in groups], edgecolor="black", linewidth=0.3)
+        zero = int(((eps == 0) & finite).sum())
+        ax.set_xlabel("Ferrari-Canny epsilon (unit-free)")
+        ax.set_ylabel("grasps")
+        ax.set_title(f"epsilon of {int(finite.sum())} grasps by outcome ({zero} not in force closure: epsilon 0)")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        _save(fig, root / "plots" / "epsilon.png")
+        written.append("plots/epsilon.png")
+
+    if "robustness" in table.column_names and "epsilon" in table.column_names:
+        r, e = float_values(table.column("robustness")), float_values(table.column("epsilon"))
+        p = float_values(table.column("pfc")) if "pfc" in table.column_names else np.full(len(r), np.nan)
+        ok = np.isfinite(r) & np.isfinite(e)
+        if ok.sum() >= 2:
+            fig, ax = plt.subplots(figsize=(6.5, 4.5))
+            jitter = (np.random.default_rng(0).random(int(ok.sum())) - 0.5) * 0.02  # seeded: bytes stay fixed
+            colour = np.where(np.isfinite(p[ok]), p[ok], 0.0)
+            sc = ax.scatter(e[ok], r[ok] + jitter, c=colour, cmap="viridis", vmin=0, vmax=1, s=14,
+                            edgecolors="black", linewidths=0.2)
+            fig.colorbar(sc, ax=ax, label="pfc")
+            corr = stats["correlation"]
+            i, j = corr["columns"].index("robustness"), corr["columns"].index("epsilon")
+            rho = corr["spearman"][i][j]
+            ax.set_xlabel("epsilon")
+            ax.set_ylabel("robustness (jittered)")
+            ax.set_title(f"robustness vs epsilon, {int(ok.sum())} successful grasps (Spearman {fmt(rho, 2)})")
+            fig.tight_layout()
+            _save(fig, root / "plots" / "correlation.png")
+            written.append("plots/correlation.png")
+
+    sheet = _examples_sheet(root, table, settings)
+    if sheet is not None:
+        buf = io.BytesIO()
+        sheet.save(buf, format="PNG", optimize=False)
+        with atomic_path(root / "plots" / "examples.png") as tmp:
+            tmp.write_bytes(buf.getvalue())
+        written.append("plots/examples.png")
+    return written
+
+
+def _examples_sheet(root: Path, table: pa.Table, settings: CardSettings) -> Any:
+    """Contact sheet of example grasps drawn on the first view of the first scenes (:mod:`graspgen.viz.grasp_view`)."""
+    if settings.example_scenes == 0 or settings.example_grasps == 0:
+        return None
+    from PIL import Image
+
+    from graspgen.io.scenes import read_scene
+    from graspgen.viz.grasp_view import grasp_picture
+
+    scene_col = np.asarray(table.column("scene_id").to_pylist(), dtype=object)
+    pictures = []
+    for sid in sorted(set(scene_col)):
+        if len(pictures) == settings.example_scenes:
+            break
+        scene = read_scene(root / "scenes" / f"{sid}.h5")
+        if scene.rgb is None:
+            continue
+        part = table.take(pa.array(np.flatnonzero(scene_col == sid)))
+        pictures.append(grasp_picture(scene, part, part, view=0, n=settings.example_grasps, scale=2))
+    if not pictures:
+        return None
+    cols = 2 if len(pictures) > 1 else 1
+    rows = math.ceil(len(pictures) / cols)
+    w = max(p.width for p in pictures)
+    h = max(p.height for p in pictures)
+    sheet = Image.new("RGB", (cols * w + (cols + 1) * 6, rows * h + (rows + 1) * 6), (255, 255, 255))
+    for i, p in enumerate(pictures):
+        sheet.paste(p, (6 + (i % cols) * (w + 6), 6 + (i // cols) * (h + 6)))
+    return sheet
