@@ -56,7 +56,9 @@ WORK = ROOT / "build" / "bench_e2e"
 
 
 def child(args: argparse.Namespace) -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    from graspgen.sim.gl import select_backend
+
+    select_backend()
     import pyarrow.parquet as pq
 
     from pipeline.config import load_config

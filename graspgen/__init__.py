@@ -19,6 +19,8 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+import graspgen.sim.gl  # noqa: F401 - chooses MuJoCo's GL back end before anything imports mujoco
+
 __all__ = ["evaluate_grasps", "load_gripper", "open_dataset"]
 
 _PUBLIC = {

@@ -4,22 +4,30 @@
 (:func:`graspgen.io.acronym.read_acronym`) or a Parquet table of poses (:func:`read_pose_table`), and rolls every grasp
 out with :class:`graspgen.sim.lift.LiftSimulator`. ``gen evaluate`` is the command line for it.
 
-Two protocols:
+Protocols (``LiftParams.protocol``, or the ``protocol`` argument; :mod:`graspgen.sim.lift`):
 
-* **free space** (default; how ACRONYM grasps were made: from all directions around a floating object). The object
-  is a free body at the world origin (mesh frame = world frame), at rest, with nothing else in the world: no
-  ground, no table. Gravity is off during placement, approach and closing (``LiftParams.gravity_until_closed``), so
-  the object floats where it is until the fingers hold it, then on for the lift, hold and optional shake. A grasp
-  from below is as good as one from above.
-* **support plane** (``free_space=False``): the object rests on a table (``SupportParams``, top at z = 0) in its
-  most probable stable pose, settled in MuJoCo, with gravity throughout; the grasps are moved with it
-  (``T_world = T_world_object @ T_object``). Grasps from below the table top are collisions with the ground (0).
+* ``acronym``: ACRONYM's own test (:class:`graspgen.sim.lift.AcronymParams`), always in free space: the hand is
+  placed at the grasp pose with its fingers fully open (a hand that intersects the object there is
+  collision_with_target), closes, gravity comes on along the approach axis, the hand shakes along its approach
+  axis and about its closing axis, and the label is whether the object is still between the fingers. Widths are
+  not used (the jaws open fully; ``width_source`` is ``protocol``). The four motion columns are ACRONYM's
+  ``object_motion_during_{closing,shaking}_{linear,angular}``. The right protocol for comparing with ACRONYM labels.
+* ``table`` (default; the pipeline's grasp-and-lift: pre-grasp 5 cm back, approach, close, lift, hold), in one of
+  two worlds:
 
-The object is prepared with :func:`graspgen.geometry.prepare.prepare_object` (repair, units, mass from density, CoACD
-with cheap settings unless configured, cached by mesh hash). Gripper opening: the given widths (the jaws open to
-``width + width_margin``), or, without widths, the width found by closing the pads onto the mesh with ray casts
-(:func:`graspgen.geometry.contacts.closing_contacts`); a grasp whose pads touch nothing that way opens fully (it will
-most likely close on air: 3).
+  - **free space** (default). The object is a free body at the world origin (mesh frame = world frame), at rest,
+    with nothing else in the world: no ground, no table. Gravity is off during placement, approach and closing
+    (``LiftParams.gravity_until_closed``), so the object floats where it is until the fingers hold it, then on for
+    the lift, hold and optional shake. A grasp from below is as good as one from above.
+  - **support plane** (``free_space=False``): the object rests on a table (``SupportParams``, top at z = 0) in its
+    most probable stable pose, settled in MuJoCo, with gravity throughout; the grasps are moved with it
+    (``T_world = T_world_object @ T_object``). Grasps from below the table top are collisions with the ground (0).
+
+The object is prepared with :func:`graspgen.geometry.prepare.prepare_object` (repair, units, mass from density,
+CoACD with cheap settings unless configured, cached by mesh hash). Gripper opening (``table``): the given widths
+(the jaws open to ``width + width_margin``), or, without widths, the width found by closing the pads onto the mesh
+with ray casts (:func:`graspgen.geometry.contacts.closing_contacts`); a grasp whose pads touch nothing that way
+opens fully (it will most likely close on air: 3).
 
 Parallelism: the grasps are cut into ``jobs`` contiguous chunks run by joblib workers; each worker builds and
 compiles its own model once (a compiled model is never pickled) and rolls its chunk out in order, so the output is
@@ -37,7 +45,8 @@ decided_in           string          protocol phase that decided it
 steps                int32           simulated steps
 sim_time             float64         simulated seconds
 width                float64         pad separation the jaws opened for (before the margin), m
-width_source         string          ``input``, ``raycast`` or ``open`` (ray casts found no contact on a pad)
+width_source         string          ``input``, ``raycast``, ``open`` (ray casts found no contact on a pad) or
+                                     ``protocol`` (``acronym``: the jaws open fully; ``width`` is that opening)
 closed_width         float64         pad separation when closing ended, m (NaN if not reached)
 lift_gain            float64         how far the object rose, m (NaN if not reached)
 rel_translation      float64         object displacement relative to the TCP after closing, m
@@ -47,10 +56,14 @@ contact_points       list<float64>   finger-object contacts at the end of closin
 contact_normals      list<float64>   their normals, into the object, object frame, k*3 values
 contact_forces       list<float64>   their normal forces, N, k values
 contact_fingers      list<int8>      0 left pad/finger, 1 right, k values
+motion_closing_linear  float64       object displacement while the fingers closed, m (NaN if not reached)
+motion_closing_angular float64       object rotation while the fingers closed, rad
+motion_shaking_linear  float64       object displacement during the shake, m (NaN if no shake ran)
+motion_shaking_angular float64       object rotation during the shake, rad
 ===================  ==============  =====================================================================
 
 Object frame: the scaled mesh frame of the input file. Contacts are mapped back from the world with the object's
-initial pose (the identity in free space), so they are exact up to the object's motion while the fingers close.
+pose at the end of closing (when they were recorded), so they are exact even where the fingers pushed the object.
 """
 
 from __future__ import annotations
@@ -67,7 +80,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import trimesh
 
-from graspgen.errors import InputError
+from graspgen.errors import InputError, SettingsError
 from graspgen.geometry.contacts import closing_contacts
 from graspgen.geometry.convex import CoacdParams
 from graspgen.geometry.prepare import prepare_object
@@ -104,7 +117,8 @@ CHEAP_COACD = CoacdParams(threshold=0.1, max_convex_hull=8, preprocess_resolutio
 """CoACD settings for one-off evaluation: ~3-10x faster than the dataset default, a few more cm^3 of hull slack."""
 
 METADATA_KEY = "evaluate"
-"""Key of the output table's schema metadata: JSON with the mesh, scale, gripper, mode, mass, friction, number of
+"""Key of the output table's schema metadata: JSON with the mesh, scale, gripper, protocol and its settings, mode,
+mass, friction, the centre of mass and torque scale (largest vertex distance from it) in the object frame, number of
 convex parts, the object's world pose (4x4) and the mesh preparation's warnings (e.g. a guessed unit)."""
 
 OBJECT_NAME = "object"
@@ -129,6 +143,10 @@ SCHEMA = pa.schema(
         ("contact_normals", pa.list_(pa.float64())),
         ("contact_forces", pa.list_(pa.float64())),
         ("contact_fingers", pa.list_(pa.int8())),
+        ("motion_closing_linear", pa.float64()),
+        ("motion_closing_angular", pa.float64()),
+        ("motion_shaking_linear", pa.float64()),
+        ("motion_shaking_angular", pa.float64()),
     ]
 )
 """The output table's schema (see the module docstring)."""
@@ -139,7 +157,8 @@ class EvaluateParams:
     """How :func:`evaluate_grasps` builds the object and rolls the grasps out."""
 
     lift: LiftParams = dataclasses.field(default_factory=LiftParams)
-    """The grasp-and-lift protocol (its ``gravity_until_closed`` is set by the mode: on in free space, else off)."""
+    """The protocol and its settings (``lift.protocol``: ``table`` or ``acronym``; for ``table`` its
+    ``gravity_until_closed`` is set by the mode: on in free space, else off)."""
     friction: float = 0.5
     """Sliding friction coefficient of the object (dimensionless; the object's value governs gripper contacts)."""
     density: float = 700.0
@@ -264,6 +283,7 @@ def evaluate_grasps(
     params: EvaluateParams | None = None,
     *,
     free_space: bool = True,
+    protocol: str | None = None,
     jobs: int = 1,
     cache_dir: str | Path | None = None,
 ) -> pa.Table:
@@ -285,7 +305,9 @@ def evaluate_grasps(
         Protocol, object properties, CoACD settings; default ``EvaluateParams()``.
     free_space : bool
         True: no support, gravity off until the fingers have closed. False: on a table, in the most probable
-        stable pose (module docstring).
+        stable pose (module docstring; ``table`` protocol only).
+    protocol : str, optional
+        ``table`` or ``acronym`` (module docstring); None: ``params.lift.protocol`` (``table`` by default).
     jobs : int
         Worker processes (contiguous chunks of grasps; each builds its own model); <= 0 means one per core.
     cache_dir : str or Path, optional
@@ -301,7 +323,7 @@ def evaluate_grasps(
     graspgen.errors.InputError
         The mesh cannot be used (missing, broken, absurd size); the message names the file.
     graspgen.errors.SettingsError
-        Unknown gripper (the message lists the choices).
+        Unknown gripper (the message lists the choices) or protocol; ``acronym`` with ``free_space=False``.
     ValueError
         Poses or widths of the wrong shape, non-finite, or not rigid (the message names the first bad index).
     """
@@ -310,6 +332,12 @@ def evaluate_grasps(
     params = EvaluateParams() if params is None else params
     if not isinstance(params, EvaluateParams):
         raise ValueError(f"params: expected EvaluateParams, got {type(params).__name__}")
+    if protocol is not None:
+        params = dataclasses.replace(params, lift=params.lift.with_protocol(protocol))
+    acronym = params.lift.protocol == "acronym"
+    if acronym and not free_space:
+        raise SettingsError("protocol: 'acronym' is a free-space protocol (no support plane); use 'table' with a "
+                            "support")
     spec = load_gripper(gripper)
     T = check_transforms("T_tcp", T_tcp)
     n = len(T)
@@ -320,7 +348,7 @@ def evaluate_grasps(
         if not (np.isfinite(widths).all() and (widths >= 0).all()):
             raise ValueError(f"widths[{int(np.flatnonzero(~(np.isfinite(widths) & (widths >= 0)))[0])}]: must be "
                              "a finite width >= 0 m")
-    lift = dataclasses.replace(params.lift, gravity_until_closed=bool(free_space))
+    lift = params.lift if acronym else dataclasses.replace(params.lift, gravity_until_closed=bool(free_space))
 
     # Stable poses only matter on a table; in free space skip their MuJoCo settle check (seconds per pose).
     poses = StablePoseParams(settle_check=not free_space, max_poses=1)
@@ -331,7 +359,11 @@ def evaluate_grasps(
     if params.mass is not None:  # the same shape and uniform density: inertia scales with the mass
         inertia, mass = inertia * (params.mass / mass), params.mass
 
-    width, source = _opening(prepared, T, widths, spec, params.rays_per_side)
+    if acronym:  # the jaws open to the protocol's opening whatever the grasp's width
+        opening = spec.max_width if lift.acronym.open_width is None else lift.acronym.open_width
+        width, source = np.full(n, float(np.clip(opening, spec.min_width, spec.max_width))), ["protocol"] * n
+    else:
+        width, source = _opening(prepared, T, widths, spec, params.rays_per_side)
 
     obj = PlacedObject(name=OBJECT_NAME, convex_parts=prepared.convex_parts, mass=float(mass),
                        center_of_mass=np.asarray(prepared.mass.center_of_mass), inertia=inertia, pose=np.eye(4),
@@ -350,9 +382,12 @@ def evaluate_grasps(
         delayed(_roll_out_chunk)(world, T_world[c], width[c]) for c in chunks
     )
     results = [r for part in parts for r in part]
-    table = _table(T, width, source, results, np.linalg.inv(obj.pose))
+    table = _table(T, width, source, results, obj.pose)
+    com = np.asarray(prepared.mass.center_of_mass, dtype=np.float64)
+    torque_scale = float(np.sqrt(np.max(np.sum((np.asarray(prepared.vertices) - com) ** 2, axis=1))))
     info = {"mesh": str(mesh_path), "scale": prepared.scale, "gripper": spec.name, "free_space": bool(free_space),
-            "mass": float(mass), "friction": params.friction, "convex_parts": len(prepared.convex_parts),
+            "protocol": lift.protocol, "lift": lift.to_dict(), "mass": float(mass), "friction": params.friction,
+            "center_of_mass": com.tolist(), "torque_scale": torque_scale, "convex_parts": len(prepared.convex_parts),
             "object_pose": obj.pose.tolist(), "warnings": list(prepared.warnings)}
     return table.replace_schema_metadata({METADATA_KEY: json.dumps(info, sort_keys=True)})
 
@@ -370,14 +405,18 @@ def _opening(prepared: Any, T: np.ndarray, widths: np.ndarray | None, spec: Any,
 
 
 def _table(T: np.ndarray, width: np.ndarray, source: list[str], results: list[RolloutResult],
-           T_object_world: np.ndarray) -> pa.Table:
-    R, t = T_object_world[:3, :3], T_object_world[:3, 3]
-
+           T_world_object: np.ndarray) -> pa.Table:
     def num(attr: str) -> pa.Array:
         return pa.array(np.array([getattr(r, attr) for r in results], dtype=np.float64))
 
-    points = [(r.contact_points @ R.T + t).reshape(-1) for r in results]
-    normals = [(r.contact_normals @ R.T).reshape(-1) for r in results]
+    def to_object(r: RolloutResult) -> np.ndarray:
+        """World -> object frame at the end of closing (the initial pose when closing was not reached)."""
+        pose = r.target_pose_closed if np.isfinite(r.target_pose_closed).all() else T_world_object
+        return np.linalg.inv(pose)
+
+    frames = [to_object(r) for r in results]
+    points = [(r.contact_points @ F[:3, :3].T + F[:3, 3]).reshape(-1) for r, F in zip(results, frames)]
+    normals = [(r.contact_normals @ F[:3, :3].T).reshape(-1) for r, F in zip(results, frames)]
     n = len(results)
     arrays = {
         "index": pa.array(np.arange(n, dtype=np.int32)),
@@ -397,6 +436,10 @@ def _table(T: np.ndarray, width: np.ndarray, source: list[str], results: list[Ro
         "contact_normals": variable_list(normals, pa.float64()),
         "contact_forces": variable_list([r.contact_forces for r in results], pa.float64()),
         "contact_fingers": variable_list([r.contact_fingers for r in results], pa.int8()),
+        "motion_closing_linear": num("motion_closing_linear"),
+        "motion_closing_angular": num("motion_closing_angular"),
+        "motion_shaking_linear": num("motion_shaking_linear"),
+        "motion_shaking_angular": num("motion_shaking_angular"),
     }
     return pa.table(arrays, schema=SCHEMA)
 

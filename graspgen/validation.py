@@ -15,9 +15,10 @@ numbers here (``True`` is not a count of 1), and NaN or infinite numbers are rej
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from typing import Any
 
 import numpy as np
@@ -416,3 +417,16 @@ def check_transforms(name: str, T: Any, *, allow_single: bool = False) -> np.nda
         raise SettingsError(f"{name}[{int(np.flatnonzero(bad)[0])}]: {what} ({int(bad.sum())} of {len(arr)} "
                             "transforms)")
     return arr
+
+
+def settings_dict(settings: Any) -> Any:
+    """Plain (JSON-able) form of a settings dataclass: dataclasses -> dicts, tuples -> lists, any mapping (a
+    config loader may hand in read-only ``MappingProxyType``\\s, which :func:`dataclasses.asdict` cannot copy)
+    -> dict. What the library stores as provenance in the files it writes."""
+    if dataclasses.is_dataclass(settings) and not isinstance(settings, type):
+        return {f.name: settings_dict(getattr(settings, f.name)) for f in dataclasses.fields(settings)}
+    if isinstance(settings, (tuple, list)):
+        return [settings_dict(v) for v in settings]
+    if isinstance(settings, Mapping):
+        return {str(k): settings_dict(v) for k, v in settings.items()}
+    return settings

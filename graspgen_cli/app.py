@@ -2,19 +2,20 @@
 
 # No `from __future__ import annotations`: Typer reads the annotations of closures at run time.
 
-import os
+# MuJoCo reads MUJOCO_GL once, when it is first imported (stages.objects imports it): choose a headless OpenGL
+# back end this machine has before that (EGL, else OSMesa, else none), so that no command needs OpenGL to start.
+from graspgen.sim.gl import select_backend
 
-# MuJoCo's renderer needs a headless GL backend on machines without a display; EGL works with Mesa. MuJoCo reads
-# the variable once, when it is first imported (stages.objects imports it), so this must come before that.
-os.environ.setdefault("MUJOCO_GL", "egl")
+select_backend()
 
 from pathlib import Path  # noqa: E402
 from typing import Annotated, Any  # noqa: E402
 
 import typer  # noqa: E402
 from rich.console import Console  # noqa: E402
+from rich.text import Text  # noqa: E402
 
-from pipeline.cli import ConfigOpt, SetOpt, build_app, fail, load  # noqa: E402
+from pipeline.cli import ConfigOpt, SetOpt, build_app, check_writable, fail, load, os_error_text  # noqa: E402
 from pipeline.errors import StageError  # noqa: E402
 from pipeline.scheduler import Project, committed, plan, upstream_view  # noqa: E402
 from pipeline.stage import topological_order  # noqa: E402
@@ -80,18 +81,18 @@ def show_scene(
     console = Console(stderr=True)
     try:
         cfg = load(PROJECT, config, set_, out=out)
+        if output is None:
+            output = Path(cfg.run.out) / "show" / (f"{scene_id}.png" if view is None else f"{scene_id}_view{view}.png")
+        check_writable(output, "output file", file=True)
         path, current = find_shard(PROJECT, cfg, "scenes", scene_id)
         scene = read_scene(path)
         sheet = contact_sheet(scene, None if view is None else [view])
     except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
     if not current:
-        console.print(f"note: {scene_id} is from an earlier config (its key differs from the current one)")
-    if output is None:
-        output = Path(cfg.run.out) / "show" / (f"{scene_id}.png" if view is None else f"{scene_id}_view{view}.png")
-    output.parent.mkdir(parents=True, exist_ok=True)
-    sheet.save(output)
-    print(output)
+        console.print(f"note: {scene_id} is from an earlier config (its key differs from the current one)",
+                      markup=False, highlight=False)
+    save_image(console, output, sheet.save)
 
 
 @show_app.command("grasps")
@@ -120,6 +121,9 @@ def show_grasps(
     notes = []
     try:
         cfg = load(PROJECT, config, set_, out=out)
+        if output is None:
+            output = Path(cfg.run.out) / "show" / f"{scene_id}_grasps_view{view}.png"
+        check_writable(output, "output file", file=True)
         scene_path, current = find_shard(PROJECT, cfg, "scenes", scene_id)
         grasps_path, grasps_current = find_shard(PROJECT, cfg, "grasps", scene_id)
         grasps = pq.read_table(grasps_path)
@@ -138,12 +142,8 @@ def show_grasps(
     except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
     for note in notes:
-        console.print(f"note: {note}", highlight=False)
-    if output is None:
-        output = Path(cfg.run.out) / "show" / f"{scene_id}_grasps_view{view}.png"
-    output.parent.mkdir(parents=True, exist_ok=True)
-    picture.save(output)
-    print(output)
+        console.print(f"note: {note}", highlight=False, markup=False)
+    save_image(console, output, picture.save)
 
 
 @show_app.command("rollout")
@@ -169,6 +169,9 @@ def show_rollout(
         cfg = load(PROJECT, config, set_, out=out)
         if output is not None and output.suffix.lower() not in (".png", ".gif"):
             raise ValueError(f"{output}: unsupported image type {output.suffix or '(none)'!r}; use .png or .gif")
+        if output is None:
+            output = Path(cfg.run.out) / "show" / f"{scene_id}_g{grasp_id}.png"
+        check_writable(output, "output file", file=True)
         scene_path, current = find_shard(PROJECT, cfg, "scenes", scene_id)
         grasps = pq.read_table(find_shard(PROJECT, cfg, "grasps", scene_id)[0])
         try:
@@ -184,17 +187,44 @@ def show_rollout(
             rollouts=rollouts,
             n_frames=frames,
         )
-        if output is None:
-            output = Path(cfg.run.out) / "show" / f"{scene_id}_g{grasp_id}.png"
-        save_movie(movie, output)
     except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
+    save_image(console, output, lambda path: save_movie(movie, path), show=False)
     if not current:
-        console.print(f"note: {scene_id} is from an earlier config (its key differs from the current one)")
+        console.print(f"note: {scene_id} is from an earlier config (its key differs from the current one)",
+                      markup=False, highlight=False)
     stored = "not rolled out" if movie.stored_outcome is None else str(movie.stored_outcome)
     console.print(f"outcome {movie.result.code} {movie.result.name} (stored: {stored}); {len(movie.images)} frames",
                   highlight=False)
     print(output)
+
+
+@show_app.command("gripper")
+def show_gripper(
+    gripper: Annotated[str, typer.Argument(help="A bundled gripper's name or the path of a gripper file (.yaml).")],
+    output: Annotated[
+        Path | None, typer.Option("--output", "-o", help="PNG path (default: OUT/show/gripper_<name>.png).")
+    ] = None,
+    wireframe: Annotated[
+        bool, typer.Option("--wireframe", help="Draw the collision geoms' outlines (matplotlib), no rendering.")
+    ] = False,
+    config: ConfigOpt = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Output folder of the run (overrides run.out).")] = None,
+) -> None:
+    """Draw a gripper open and closed with its TCP frame (PNG); print the PNG's path."""
+    from graspgen.sim.grippers import gripper_picture, load_gripper
+
+    console = Console(stderr=True)
+    try:
+        spec = load_gripper(gripper)
+        if output is None:
+            safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in spec.name)
+            output = Path(load(PROJECT, config, None, out=out).run.out) / "show" / f"gripper_{safe}.png"
+        check_writable(output, "output file", file=True)
+        picture = gripper_picture(spec, render=not wireframe)
+    except (*USER_ERRORS, ValueError) as exc:
+        fail(console, str(exc))
+    save_image(console, output, picture.save)
 
 
 @app.command("evaluate")
@@ -217,15 +247,25 @@ def evaluate(
         float | None, typer.Option("--friction", help="Object friction (default: object/friction, else 0.5).")
     ] = None,
     support: Annotated[
-        bool, typer.Option("--support", help="Object on a table in its most probable stable pose (not free space).")
+        bool, typer.Option("--support", help="Object on a table in its most probable stable pose (table protocol).")
     ] = False,
+    protocol: Annotated[
+        str | None,
+        typer.Option(
+            "--protocol",
+            help="acronym (ACRONYM's free-space close-and-shake) or table (approach, close, lift); default: acronym "
+            "for ACRONYM files (table with --support), table for Parquet.",
+        ),
+    ] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Worker processes (0 = all cores).")] = 1,
     config: ConfigOpt = None,
     set_: SetOpt = None,
 ) -> None:
     """Label external grasps of one object with our simulator (outcome 0-5 per grasp, in input order).
 
-    Free space by default, as ACRONYM: no support; gravity off until the fingers have closed.
+    Protocols (README, Protocols): acronym (ACRONYM files' default) places the open hand at the grasp, closes and
+    shakes in free space; table approaches, closes and lifts, in free space (gravity off until the fingers have
+    closed) or, with --support, on a table.
 
     ACRONYM: hand-base poses + the file gripper's TCP offset; object/scale, mass (or density), friction are used.
 
@@ -254,11 +294,15 @@ def evaluate(
     try:
         cfg = load(PROJECT, config, set_)
         load_gripper(gripper)  # ConfigError listing the grippers, before any work
+        check_writable(output, "output file (-o)", file=True)  # a folder, a read-only place: before simulating
         suffix = grasps.suffix.lower()
         if not grasps.is_file():
             raise InputError(f"{grasps}: grasp file not found")
         params = EvaluateParams(lift=cfg.rollouts.lift, coacd=cfg.objects.coacd if config else CHEAP_COACD)
         reference = None
+        if protocol is None:
+            protocol = "acronym" if suffix in (".h5", ".hdf5") and not support else "table"
+        params = dataclasses.replace(params, lift=params.lift.with_protocol(protocol))
         if suffix in (".h5", ".hdf5"):
             acr = read_acronym(grasps)
             try:
@@ -301,12 +345,16 @@ def evaluate(
         fail(console, str(exc))
     if reference is not None:  # keep the file's own label next to ours, for comparison
         table = table.append_column("reference_success", pa.array(np.asarray(reference, dtype=np.int8)))
-    output.parent.mkdir(parents=True, exist_ok=True)
-    write_parquet(output, table)
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        write_parquet(output, table)
+    except OSError as exc:
+        fail(console, f"{output}: cannot write the labels ({os_error_text(exc)})", code=1)
     for warning in json.loads(table.schema.metadata[METADATA_KEY.encode()])["warnings"]:
-        console.print(f"warning: {warning}", highlight=False)
+        console.print(f"warning: {warning}", highlight=False, markup=False)
     counts = ", ".join(f"{name} {n}" for name, n in outcome_counts(table).items() if n)
-    console.print(f"{len(table)} grasps ({'support plane' if support else 'free space'}): {counts}", highlight=False)
+    mode = "support plane" if support else ("acronym protocol, free space" if protocol == "acronym" else "free space")
+    console.print(f"{len(table)} grasps ({mode}): {counts}", highlight=False)
     if reference is not None:
         agree = int(np.sum((table.column("outcome").to_numpy() == 5) == (np.asarray(reference) == 1)))
         console.print(f"agreement with the file's success label: {agree}/{len(table)}", highlight=False)
@@ -325,6 +373,8 @@ def report_cmd(
         path = report(out)
     except USER_ERRORS as exc:
         fail(console, str(exc))
+    except OSError as exc:  # a read-only dataset folder, a damaged HDF5 file
+        fail(console, f"{out}: cannot render the card ({os_error_text(exc)}); gen validate {out} names bad files", 1)
     print(path)
 
 
@@ -341,12 +391,27 @@ def validate_cmd(
     except USER_ERRORS as exc:
         fail(console, str(exc))
     if problems:
-        console.print(f"[bold red]{len(problems)} problem(s)[/] in {out} ({checked} files checked):", highlight=False)
+        head = Text.assemble((f"{len(problems)} problem(s)", "bold red"), f" in {out} ({checked} files checked):")
+        console.print(head, highlight=False, soft_wrap=True)
         for p in problems:
-            console.print(f"  {p}", highlight=False, soft_wrap=True)
+            console.print(f"  {p}", highlight=False, soft_wrap=True, markup=False)
         raise typer.Exit(1)
     console.print(f"OK: {out}: {checked} files match their hashes; the table matches its schema",
-                  highlight=False, soft_wrap=True)
+                  highlight=False, soft_wrap=True, markup=False)
+
+
+def save_image(console: Console, output: Path, save: Any, *, show: bool = True) -> None:
+    """``save(output)`` into its folder (made when missing), then print the path (with ``show``); a failure to
+    write is one line and exit 1."""
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        save(output)
+    except OSError as exc:
+        fail(console, f"{output}: cannot write the image ({os_error_text(exc)})", code=1)
+    except ValueError as exc:
+        fail(console, str(exc))
+    if show:
+        print(output)
 
 
 def main() -> None:

@@ -1,9 +1,10 @@
 """Content keys: what a task's output is a function of, hashed.
 
-A key is ``sha256`` of the canonical JSON of everything that determines a shard's bytes (ARCHITECTURE.md, The engine):
-the key scheme version, the stage name and version, the stage's params, the task id and payload, the keys of the
-upstream shards it reads, and the sha256 of every raw input file. Same key -> same bytes; a changed param changes the
-key of that stage and of everything downstream, nothing else.
+A key is ``sha256`` of the canonical JSON of everything that determines a shard's bytes (ARCHITECTURE.md, The
+engine): the key scheme version, the stage name and version, the stage's params, the task id and payload, the keys
+of the upstream shards it reads, the sha256 of every raw input file, and the code the stage runs with the versions
+of the packages it imports (:mod:`pipeline.fingerprint`). Same key -> same bytes; a changed param or source file
+changes the key of that stage and of everything downstream, nothing else.
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ import numpy as np
 
 from pipeline.config import to_dict
 
-KEY_SCHEME = 1
-"""Bump when the key recipe itself changes: every output becomes stale."""
+KEY_SCHEME = 2
+"""Bump when the key recipe itself changes: every output becomes stale. 2: keys cover code and packages."""
 
 
 def canonical_json(obj: Any) -> str:
@@ -63,8 +64,13 @@ def key_parts(
     payload: Any,
     upstream: dict[str, dict[str, str]],
     input_hashes: dict[str, str],
+    code: dict[str, str] | None = None,
 ) -> dict[str, str]:
-    """The hashed components of a task key, kept apart so ``gen status`` can say which one changed."""
+    """The hashed components of a task key, kept apart so ``gen status`` can say which one changed.
+
+    ``code`` is the stage's :func:`pipeline.fingerprint.stage_fingerprint`: one part per source file
+    (``code:<path>``) and per package (``package:<name>``), so a change names the file or the package.
+    """
     return {
         "scheme": str(KEY_SCHEME),
         "stage": f"{stage}@{version}",
@@ -72,12 +78,59 @@ def key_parts(
         "task": sha256_text(canonical_json({"id": task_id, "payload": payload})),
         "upstream": sha256_text(canonical_json(upstream)),
         "inputs": sha256_text(canonical_json(input_hashes)),
+        **(code or {}),
     }
+
+
+_PART_REASONS = {
+    "scheme": "the key scheme changed",
+    "stage": "the stage version changed",
+    "params": "its params changed",
+    "task": "the task definition changed",
+    "upstream": "an upstream shard changed",
+    "inputs": "an input file changed",
+}
+
+
+def changed_parts(old: dict[str, str], new: dict[str, str]) -> list[str]:
+    """Why a key changed, part by part, in words: ``its params changed``, ``code: graspgen/sim/lift.py``,
+    ``package: mujoco 3.3.7 -> 4.0.0``, ``code: stages/x.py (new)``."""
+    reasons = []
+    for name in sorted(set(old) | set(new), key=lambda n: (n.startswith(("code:", "package:")), n)):
+        before, after = old.get(name), new.get(name)
+        if before == after:
+            continue
+        kind, _, what = name.partition(":")
+        if kind == "code":
+            reasons.append(f"code: {what}" + (" (new)" if before is None else " (gone)" if after is None else ""))
+        elif kind == "package":
+            reasons.append(f"package: {what} {before or 'none'} -> {after or 'none'}")
+        else:
+            reasons.append(_PART_REASONS.get(name, name))
+    return reasons
 
 
 def task_key(parts: dict[str, str]) -> str:
     """The content key: sha256 of the canonical JSON of :func:`key_parts`."""
     return sha256_text(canonical_json(parts))
+
+
+SEED_SCHEME = 1
+"""Bump to draw every random number anew. The seed key below is the content key of scheme 1 (before keys covered
+code): the draws of every task stay what they were then."""
+
+
+def seed_key(parts: dict[str, str], upstream_seeds: dict[str, dict[str, str]]) -> str:
+    """The key a task's random generator is seeded from: its content key without the code and package parts, with
+    the upstream shards named by their own seed keys.
+
+    A code change re-runs the stages that import the changed file (their content keys change) but with the same
+    random draws, so old and new labels can be compared grasp by grasp (the same perturbations, the same scenes),
+    and a refactor that changes no behaviour reproduces every byte.
+    """
+    data = {k: v for k, v in parts.items() if not k.startswith(("code:", "package:"))}
+    data.update(scheme=str(SEED_SCHEME), upstream=sha256_text(canonical_json(upstream_seeds)))
+    return task_key(data)
 
 
 def rng_for_key(key: str) -> np.random.Generator:

@@ -10,11 +10,14 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import multiprocessing
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +25,8 @@ import joblib
 
 from pipeline.config import RunConfig, to_yaml
 from pipeline.errors import ConfigError, GenError, StageError
-from pipeline.keys import key_parts, rng_for_key, sha256_file, task_key
+from pipeline.fingerprint import stage_fingerprint
+from pipeline.keys import changed_parts, key_parts, rng_for_key, seed_key, sha256_file, task_key
 from pipeline.stage import RunContext, Stage, Task, Upstream, stage_waves, topological_order
 from pipeline.store import (
     Entry,
@@ -61,6 +65,8 @@ class PlannedTask:
     task: Task
     key: str
     parts: dict[str, str]
+    seed: str
+    """The seed key (:func:`pipeline.keys.seed_key`): the task's random generator comes from it."""
 
 
 @dataclasses.dataclass
@@ -78,6 +84,11 @@ class StageReport:
     """Index of the wave the stage ran in (stages of one wave do not read each other and share the workers)."""
     failures: list[tuple[str, str]] = dataclasses.field(default_factory=list)
     """(task id, error text) of every failed task, new or remembered."""
+    warnings: list[str] = dataclasses.field(default_factory=list)
+    """What the user should know about the stage's current output (:func:`stage_warnings`): planning warnings
+    (:meth:`Stage.plan_warnings`), then the ``meta["warnings"]`` of its current shards, run now or earlier."""
+    repaired: list[str] = dataclasses.field(default_factory=list)
+    """What :meth:`Stage.publish` repaired in the output it had published earlier (damaged or missing files)."""
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -87,7 +98,39 @@ class StageReport:
 def committed(out: Path, stage: str, *, verify_hash: bool = True) -> dict[str, Entry]:
     """Successful, intact entries of a stage folder, by key."""
     manifest = Manifest(stage_dir(out, stage))
-    return {k: e for k, e in manifest.entries().items() if manifest.shard_ok(e, verify_hash=verify_hash)}
+    return {k: e for k, e in manifest.entries().items() if shard_ok(manifest, e, verify_hash=verify_hash)}
+
+
+_checked: dict[tuple[Any, ...], bool] | None = None
+"""The shard checks of the run (or status) in progress, by file and expected hash; None outside one."""
+
+
+@contextlib.contextmanager
+def one_check_per_shard() -> Iterator[None]:
+    """Within the block, :func:`shard_ok` hashes each shard file once: a run looks at a stage's shards when it
+    plans the stage, plans each stage below it and publishes. A check is keyed by the file's path, size, mtime,
+    inode and the expected sha256, so a shard the run writes (a new file) is checked anew."""
+    global _checked
+    saved, _checked = _checked, {}
+    try:
+        yield
+    finally:
+        _checked = saved
+
+
+def shard_ok(manifest: Manifest, entry: Entry, *, verify_hash: bool = True) -> bool:
+    """:meth:`Manifest.shard_ok`, done once per shard file inside :func:`one_check_per_shard`."""
+    if _checked is None or not verify_hash or entry.status != "ok" or entry.file is None:
+        return manifest.shard_ok(entry, verify_hash=verify_hash)
+    path = manifest.stage_dir / entry.file
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    key = (str(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev, entry.bytes, entry.sha256)
+    if key not in _checked:
+        _checked[key] = manifest.shard_ok(entry)
+    return _checked[key]
 
 
 def upstream_view(out: Path, stage: Stage, current: dict[str, set[str]], *, verify_hash: bool = True) -> Upstream:
@@ -117,6 +160,7 @@ def plan(stage: Stage, params: Any, upstream: Upstream) -> list[PlannedTask]:
             raise StageError(f"{stage.name}: two tasks share the id {t.id!r}; task ids must be unique")
         seen[t.id] = t
     file_hashes: dict[str, str] = {}
+    code = stage_fingerprint(type(stage).__module__)
     planned = []
     for t in tasks:
         hashes = {}
@@ -132,8 +176,10 @@ def plan(stage: Stage, params: Any, upstream: Upstream) -> list[PlannedTask]:
             payload=t.payload,
             upstream=upstream.keys(t.needs),
             input_hashes=hashes,
+            code=code,
         )
-        planned.append(PlannedTask(t, task_key(parts), parts))
+        seed = seed_key(parts, upstream.seeds(t.needs))
+        planned.append(PlannedTask(t, task_key(parts), parts, seed))
     return planned
 
 
@@ -160,11 +206,14 @@ def execute_task(
     stage: Stage, planned: PlannedTask, params: Any, upstream: Upstream, stage_dir: Path, ctx: RunContext
 ) -> Entry:
     """Run one task and write its shard; never raises (a failure becomes a ``failed`` entry)."""
+    if multiprocessing.parent_process() is not None and threading.current_thread() is threading.main_thread():
+        # Ctrl-C reaches the whole process group: the parent reports it once and stops; workers stay quiet.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     start = time.perf_counter()
     task, key = planned.task, planned.key
     final = shard_path(stage_dir, key, stage.ext)
     try:
-        rng = rng_for_key(key)
+        rng = rng_for_key(planned.seed)
         with atomic_path(final) as tmp:
             meta = stage.run(task, params, upstream, rng, tmp, ctx) or {}
         return Entry(
@@ -177,6 +226,7 @@ def execute_task(
             seconds=round(time.perf_counter() - start, 4),
             parts=planned.parts,
             meta=meta,
+            seed=planned.seed,
         )
     except OSError as exc:
         if not out_of_space(exc):
@@ -254,9 +304,64 @@ def parallel_backend(run: RunConfig, jobs: int) -> Iterator[None]:
                 n_workers=jobs, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=40
             )
             client = Client(cluster)
+        import concurrent.futures
+
+        from distributed import KilledWorker
+        from joblib._dask import DaskDistributedBackend
+
+        def gave_up(exc: BaseException, calls: Any) -> GenError:
+            """One line for a batch dask gave up on, naming its tasks when they are ``execute_task`` calls."""
+            try:
+                names = ", ".join(f"{args[0].name}/{args[1].task.id}" for _, args, _ in calls.items)
+            except (AttributeError, IndexError, TypeError):
+                names = ""
+            if not isinstance(exc, KilledWorker):
+                text = (str(exc).splitlines() or [""])[0]
+                return GenError(f"{names or 'a task'}: dask could not run it ({type(exc).__name__}: {text})")
+            return GenError(
+                f"{names or 'a task'}: every dask worker that ran it died ({exc.allowed_failures + 1} of them, the "
+                f"last {getattr(exc.last_worker, 'address', exc.last_worker)}): it crashes them or runs them out "
+                "of memory, see the workers' logs. Finished tasks are kept; run the same command again to resume"
+            )
+
+        class Failed:
+            """What the completion callback gets for a batch whose dask future failed."""
+
+            def __init__(self, error: GenError):
+                self.error = error
+
+        class Backend(DaskDistributedBackend):
+            """joblib's dask backend, except that a batch dask gives up on fails the joblib call. A worker that
+            dies is survived by dask itself (its tasks run again elsewhere); but a task whose workers die
+            ``distributed.scheduler.allowed-failures`` + 1 times (4 by default: it crashes them, or runs them out
+            of memory) gets a ``KilledWorker`` error, which joblib's backend sets on the batch's future and never
+            reports to its completion callback: the call, waiting on the callbacks, would wait forever."""
+
+            def submit(self, func: Any, callback: Any = None) -> Any:
+                future = super().submit(func, callback)
+
+                def done(f: Any) -> None:
+                    if callback is not None and not f.cancelled() and f.exception() is not None:
+                        callback(Failed(gave_up(f.exception(), func)))
+
+                future.add_done_callback(done)
+                return future
+
+            def retrieve_result_callback(self, out: Any) -> Any:
+                if isinstance(out, Failed):
+                    raise out.error
+                return super().retrieve_result_callback(out)
+
         try:
-            with joblib.parallel_config(backend="dask"):
+            with joblib.parallel_config(backend=Backend(client=client)):
                 yield
+        except concurrent.futures.CancelledError as exc:
+            if getattr(exc, "reason", None) != "scheduler-connection-lost":
+                raise
+            raise GenError(
+                f"lost the dask scheduler at {client.scheduler.address} mid-run (it stopped, or the network failed); "
+                "finished tasks are kept: start it again and run the same command again to resume"
+            ) from None
         finally:
             client.close()
             if cluster is not None:
@@ -315,11 +420,14 @@ def run_pipeline(
     notify = progress or (lambda event, **info: None)
     reports: dict[str, StageReport] = {}
     current: dict[str, set[str]] = {}
-    with RunLock(out), parallel_backend(run, jobs):
+    warned: dict[str, list[str]] = {}
+    for stage in order:
+        stage.check(stage.params(config))
+    with RunLock(out), parallel_backend(run, jobs), one_check_per_shard():
         remove_stray_temps(out)
         write_text_atomic(run_config_path(out), to_yaml(config, comments=False))
         for index, wave in enumerate(stage_waves(order)):
-            for stage_run in _run_wave(wave, config, out, ctx, jobs, retry_failed, notify, current):
+            for stage_run in _run_wave(wave, config, out, ctx, jobs, retry_failed, notify, current, warned):
                 current[stage_run.stage.name] = stage_run.keys
                 stage_run.report.wave = index
                 reports[stage_run.stage.name] = stage_run.report
@@ -370,7 +478,7 @@ def _start_stage(
     pending: list[PlannedTask] = []
     for p in planned:
         entry = entries.get(p.key)
-        if entry is not None and manifest.shard_ok(entry):
+        if entry is not None and shard_ok(manifest, entry):
             report.skipped += 1
         elif entry is not None and entry.status == "failed" and not retry_failed:
             report.failed += 1
@@ -389,6 +497,7 @@ def _run_wave(
     retry_failed: bool,
     notify: Any,
     current: dict[str, set[str]],
+    warned: dict[str, list[str]] | None = None,
 ) -> list[_StageRun]:
     """Run the pending tasks of stages that do not read each other through one pool of workers.
 
@@ -403,7 +512,7 @@ def _run_wave(
                remembered=r.report.failed)
     for r in runs:
         if not r.pending:
-            _finish_stage(r, out, current, start, notify)
+            _finish_stage(r, out, current, start, notify, warned)
     work = [(r, p) for r in runs for p in r.pending]
     if work:
         work.sort(key=lambda rp: -rp[1].task.cost)
@@ -440,21 +549,67 @@ def _run_wave(
             notify("task_done", stage=r.stage.name, task=entry.task, ok=entry.status == "ok")
             left[r.stage.name] -= 1
             if left[r.stage.name] == 0:
-                _finish_stage(r, out, current, start, notify)
+                _finish_stage(r, out, current, start, notify, warned)
     return runs
 
 
-def _finish_stage(r: _StageRun, out: Path, current: dict[str, set[str]], start: float, notify: Any) -> None:
-    """Publish a stage whose tasks are all settled, and report it."""
+def _finish_stage(
+    r: _StageRun,
+    out: Path,
+    current: dict[str, set[str]],
+    start: float,
+    notify: Any,
+    warned: dict[str, list[str]] | None = None,
+) -> None:
+    """Collect the warnings of a stage whose tasks are all settled, publish it, and report it."""
     stage = r.stage
+    warned = {} if warned is None else warned
+    own = {e.task: e for e in Manifest(stage_dir(out, stage.name)).entries().values() if e.key in r.keys}
+    r.report.warnings = stage_warnings(stage, r.params, r.upstream, own)
+    # What publish sees also names the failed tasks: their inputs are left out of what it lays out.
+    warned[stage.name] = r.report.warnings + [
+        f"{task}: left out: {error.splitlines()[0] if error else 'failed'}" for task, error in sorted(r.report.failures)
+    ]
     if type(stage).publish is not Stage.publish:
         view = upstream_view(out, stage, current)
         own = {e.task: e for k, e in committed(out, stage.name).items() if k in r.keys}
-        stage.publish(r.params, Upstream(out, {**{d: view_entries(view, d) for d in stage.inputs}, stage.name: own}),
-                      out)
+        shards = Upstream(
+            out,
+            {**{d: view_entries(view, d) for d in stage.inputs}, stage.name: own},
+            warnings={s: warned[s] for s in (*stage.inputs, stage.name) if s in warned},
+        )
+        r.report.repaired = list(stage.publish(r.params, shards, out) or [])
     r.report.seconds = time.perf_counter() - start
     r.report.failures.sort()
     notify("stage_end", stage=stage.name, report=r.report)
+
+
+WARNING_TASKS_SHOWN = 3
+"""A warning that several tasks give is shown once, naming this many of them and counting the rest."""
+
+
+def stage_warnings(stage: Stage, params: Any, upstream: Upstream, entries: Mapping[str, Entry]) -> list[str]:
+    """A stage's warnings: :meth:`Stage.plan_warnings`, then the ``meta["warnings"]`` (list of str) of its
+    successful ``entries`` (by task id), each as ``"<task>: <text>"``; a text that several tasks give is listed
+    once, as ``"<text> (<n> tasks: a, b, c and 2 more)"``."""
+    plan = [str(w) for w in stage.plan_warnings(params, upstream)]
+    by_text: dict[str, list[str]] = {}
+    for task_id in sorted(entries):
+        entry = entries[task_id]
+        found = entry.meta.get("warnings") if entry.status == "ok" and isinstance(entry.meta, dict) else None
+        for text in found if isinstance(found, list) else []:
+            tasks = by_text.setdefault(str(text), [])
+            if task_id not in tasks:
+                tasks.append(task_id)
+    lines = []
+    for text, tasks in by_text.items():
+        if len(tasks) == 1:
+            lines.append(f"{tasks[0]}: {text}")
+        else:
+            named = ", ".join(tasks[:WARNING_TASKS_SHOWN])
+            more = f" and {len(tasks) - WARNING_TASKS_SHOWN} more" if len(tasks) > WARNING_TASKS_SHOWN else ""
+            lines.append(f"{text} ({len(tasks)} tasks: {named}{more})")
+    return list(dict.fromkeys(plan + lines))
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -467,8 +622,9 @@ class StageStatus:
 
     stage: str
     state: str
-    """``done``, ``missing`` (some tasks not committed), ``stale`` (committed under old keys), ``failed``,
-    ``waiting`` (an input stage is not done)."""
+    """``done``, ``missing`` (some tasks not committed, or their shards missing or damaged), ``stale`` (committed
+    under old keys), ``failed``, ``waiting`` (an input stage has new work first), ``damaged`` (the shards are
+    done but output the stage published is missing or damaged: :meth:`Stage.publish_status`)."""
     total: int = 0
     done: int = 0
     failed: int = 0
@@ -476,22 +632,34 @@ class StageStatus:
     reasons: list[str] = dataclasses.field(default_factory=list)
 
 
-_PART_REASONS = {
-    "scheme": "the key scheme changed",
-    "stage": "the stage version changed",
-    "params": "its params changed",
-    "task": "the task definition changed",
-    "upstream": "an upstream shard changed",
-    "inputs": "an input file changed",
-}
+
+
+DAMAGED_SHARD = "its shard is missing or damaged"
+"""Status reason of a task whose entry is current but whose shard fails the run's check (size and sha256)."""
 
 
 def status(project: Project, config: Any, targets: Sequence[str] | None = None) -> list[StageStatus]:
-    """done / missing / stale / failed / waiting for each stage, with the reason for staleness."""
+    """done / missing / stale / failed / waiting / damaged for each stage, with the reasons: what ``gen run`` with
+    the same config would do.
+
+    Shards are checked as the run checks them (size and sha256). A current shard that is missing or damaged is
+    remade by the run with the same key, so the stages below it are planned as the run will plan them (not
+    ``waiting``). A stage with no new work (and no failed task) is asked what its publish step would repair
+    (:meth:`Stage.publish_status`): those lines appear as ``published: ...`` reasons.
+    """
+    with one_check_per_shard():
+        return _status(project, config, targets)
+
+
+def _status(project: Project, config: Any, targets: Sequence[str] | None) -> list[StageStatus]:
     out = Path(config.run.out)
     result = []
     not_done: set[str] = set()
     current: dict[str, set[str]] = {}
+    intact: dict[str, dict[str, Entry]] = {}
+    """Per stage, the current shards that pass the check, by task id: what the run and its publish see."""
+    redo: dict[str, dict[str, Entry]] = {}
+    """Per stage, the current entries whose shard is missing or damaged: remade by the run with the same key."""
     for stage in topological_order(project.stages, targets):
         waiting = [d for d in stage.inputs if d in not_done]
         if waiting:
@@ -503,31 +671,54 @@ def status(project: Project, config: Any, targets: Sequence[str] | None = None) 
         by_task: dict[str, Entry] = {}
         for e in entries.values():
             by_task[e.task] = e
-        planned = plan(stage, stage.params(config), upstream_view(out, stage, current, verify_hash=False))
+        params = stage.params(config)
+        after_run = {d: {**intact.get(d, {}), **redo.get(d, {})} for d in stage.inputs}
+        planned = plan(stage, params, Upstream(out, after_run))
         current[stage.name] = {p.key for p in planned}
         st = StageStatus(stage.name, "done", total=len(planned))
-        reasons: dict[str, int] = {}
+        reasons: dict[str, list[str]] = {}
+        own_intact: dict[str, Entry] = {}
+        own_redo: dict[str, Entry] = {}
+        new_work = False
         for p in planned:
             entry = entries.get(p.key)
-            if entry is not None and manifest.shard_ok(entry, verify_hash=False):
-                st.done += 1
+            if entry is not None and entry.status == "ok":
+                ok = shard_ok(manifest, entry)  # size and sha256, as the run checks
+                st.done += ok
+                (own_intact if ok else own_redo)[p.task.id] = entry
             elif entry is not None and entry.status == "failed":
                 st.failed += 1
             else:
-                st.missing += 1
+                new_work = True
                 old = by_task.get(p.task.id)
-                if old is not None:
-                    changed = [_PART_REASONS.get(k, k) for k in p.parts if old.parts.get(k) != p.parts[k]]
-                    for r in changed or ["its shard is missing or damaged"]:
-                        reasons[r] = reasons.get(r, 0) + 1
-        st.reasons = [f"{n} task(s): {r}" for r, n in sorted(reasons.items())]
-        if st.missing:
+                for r in (changed_parts(old.parts, p.parts) or ["its key changed"]) if old is not None else []:
+                    reasons.setdefault(r, []).append(p.task.id)
+        intact[stage.name], redo[stage.name] = own_intact, own_redo
+        st.missing = len(planned) - st.done - st.failed
+        st.reasons = [f"{len(ids)} task(s): {r}" for r, ids in sorted(reasons.items())]
+        if own_redo:
+            st.reasons.append(f"{len(own_redo)} task(s): {DAMAGED_SHARD} ({_some(sorted(own_redo))})")
+        if new_work:
             st.state = "stale" if reasons else "missing"
             not_done.add(stage.name)
+        elif own_redo:
+            st.state = "missing"
         elif st.failed:
             st.state = "failed"
+        if not new_work and not st.failed:
+            view = Upstream(out, {**{d: intact.get(d, {}) for d in stage.inputs}, stage.name: own_intact})
+            problems = [f"published: {line}" for line in stage.publish_status(params, view, out)]
+            st.reasons += problems
+            if problems and st.state == "done":
+                st.state = "damaged"
         result.append(st)
     return result
+
+
+def _some(names: Sequence[str], shown: int = WARNING_TASKS_SHOWN) -> str:
+    """``a, b, c`` or ``a, b, c and 4 more``."""
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return ", ".join(names[:shown]) + more
 
 
 def print_error(message: str) -> None:

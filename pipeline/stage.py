@@ -57,11 +57,23 @@ class Upstream:
         The run's output folder.
     entries : dict
         ``{stage: {task_id: Entry}}`` of successful, verified shards.
+    warnings : dict, optional
+        ``{stage: [text]}``: the warnings the engine collected for stages of this run (given to ``publish``).
     """
 
-    def __init__(self, out: Path, entries: Mapping[str, Mapping[str, Entry]]):
+    def __init__(
+        self,
+        out: Path,
+        entries: Mapping[str, Mapping[str, Entry]],
+        warnings: Mapping[str, Sequence[str]] | None = None,
+    ):
         self.out = Path(out)
         self._entries = {stage: dict(by_id) for stage, by_id in entries.items()}
+        self._warnings = {stage: list(w) for stage, w in (warnings or {}).items()}
+
+    def warnings(self, stage: str) -> list[str]:
+        """Warnings of ``stage`` in this run (unit guesses, inputs left out, ...); empty when none or not known."""
+        return list(self._warnings.get(stage, []))
 
     def stages(self) -> list[str]:
         return sorted(self._entries)
@@ -92,6 +104,13 @@ class Upstream:
     def keys(self, needs: Mapping[str, Sequence[str]] | None) -> dict[str, dict[str, str]]:
         """``{stage: {task_id: key}}`` for what a task reads: this enters the task's own key."""
         return {stage: {tid: self.key(stage, tid) for tid in sorted(ids)} for stage, ids in self._needs(needs).items()}
+
+    def seeds(self, needs: Mapping[str, Sequence[str]] | None) -> dict[str, dict[str, str]]:
+        """``{stage: {task_id: seed key}}`` for what a task reads: this enters the task's own seed key."""
+        return {
+            stage: {tid: self.entry(stage, tid).seed or self.key(stage, tid) for tid in sorted(ids)}
+            for stage, ids in self._needs(needs).items()
+        }
 
     def subset(self, needs: Mapping[str, Sequence[str]] | None) -> Upstream:
         """The part of this view a task reads (what gets shipped to its worker)."""
@@ -133,6 +152,10 @@ class Stage(abc.ABC):
         """This stage's params: the config section named like the stage."""
         return getattr(config, self.name)
 
+    def check(self, params: Any) -> None:  # noqa: B027 - optional hook
+        """Optional: raise if the stage cannot run here with these params (a missing library, a missing file), so
+        the run stops before any work. Called for every stage of a run, in order, before the first task."""
+
     @abc.abstractmethod
     def tasks(self, params: Any, upstream: Upstream) -> list[Task]:
         """How the work fans out, given the params and the finished upstream shards."""
@@ -147,14 +170,35 @@ class Stage(abc.ABC):
         message should name the input at fault.
         """
 
-    def publish(self, params: Any, shards: Upstream, dest: Path) -> None:  # noqa: B027 - optional hook
+    def publish(self, params: Any, shards: Upstream, dest: Path) -> list[str] | None:  # noqa: B027 - optional
         """Optional: lay out this stage's committed shards for people somewhere under ``dest`` (the run's output
         folder). Runs in the parent process after the stage's tasks are committed, on every run, so it must be
         cheap, idempotent and write files atomically; it only reads shards, so it cannot change any key.
 
         ``shards`` is an :class:`Upstream` view holding this stage's own current shards plus its inputs' (by stage
-        name). The default does nothing.
+        name; their shards are verified by sha256 in this run) and the warnings of this run's stages
+        (:meth:`Upstream.warnings`). The default does nothing.
+
+        It may return lines saying what it repaired in output published earlier (``"replaced scenes/x.h5
+        (damaged)"``): the engine puts them on the stage's report. None or an empty list: nothing to say.
         """
+
+    def publish_status(self, params: Any, shards: Upstream, dest: Path) -> list[str]:
+        """Optional: what :meth:`publish` would repair in the output it published earlier, one line per file that
+        is missing or damaged (``"scenes/x.h5 damaged (will be replaced)"``); empty when it is intact.
+
+        ``gen status`` calls it when the stage has no new work (its shards are current, or will be remade with
+        the same keys), with the view :meth:`publish` would get minus the shards that are missing or damaged now
+        (those will be remade, so output linked to them is damaged too). It must be read-only and fast (file
+        stats; read a file only when its stats say it changed). The default reports nothing.
+        """
+        return []
+
+    def plan_warnings(self, params: Any, upstream: Upstream) -> list[str]:
+        """Optional: warnings about how the work fans out (inputs a setting leaves out, ...), shown at the end of
+        ``gen run`` with the warnings the tasks return in their metadata (``meta["warnings"]``). The default
+        has none."""
+        return []
 
 
 def topological_order(stages: Sequence[Stage], targets: Sequence[str] | None = None) -> list[Stage]:

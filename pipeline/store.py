@@ -73,6 +73,9 @@ class Entry:
     """Small stage-defined metadata (row counts, warnings) that downstream ``tasks()`` may read."""
     error: str | None = None
     """Error text of a failed task."""
+    seed: str | None = None
+    """The seed key the task's random generator came from (:func:`pipeline.keys.seed_key`); downstream seed keys
+    name this shard by it."""
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True, separators=(",", ":"))

@@ -31,6 +31,16 @@ and nothing else: the engine's shards and manifest of this stage are in ``OUT/sh
 validate``). Read a dataset with
 :func:`graspgen.io.reader.open_dataset`.
 
+The folder heals. Publish keeps a record of every file it laid out (size, mtime, inode, sha256; for a shard's link
+its shard) in ``OUT/shards/dataset/published.json`` and every run checks the folder against it, fast
+(:func:`check_published`: a link is intact when it is its verified shard's inode with its size, any other file
+when its size, mtime and inode are unchanged, else its sha256 decides): a damaged or missing link is made again
+(a damaged shard is remade by its stage first: the run checks shards by sha256), a stray file in the dataset's
+folders is removed, and a damaged or missing file of any other kind (plots, ACRONYM files, the card) lays the
+folder out again. ``gen status`` runs the same check (:meth:`DatasetStage.publish_status`) and names each file
+the run will replace. Only ``gen validate`` reads every byte. The card also lists the run's warnings (unit guesses
+and repairs of meshes, objects left out and why, objects the gripper cannot grasp), given to publish by the engine.
+
 Columns of ``grasps.parquet`` (with the default table stages; every column's description,
 :data:`graspgen.io.dataset_table.COLUMN_DOCS`, is also stored in the Parquet field metadata under ``description``;
 poses are 4x4 row-major, TCP frame: z approach, x closing):
@@ -112,7 +122,7 @@ from pipeline.config import to_dict, to_yaml
 from pipeline.errors import StageError
 from pipeline.keys import canonical_json, sha256_file
 from pipeline.stage import RunContext, Task, Upstream
-from pipeline.store import MANIFEST, SHARDS, Manifest, atomic_path, write_text_atomic
+from pipeline.store import MANIFEST, SHARDS, Entry, Manifest, atomic_path, stage_dir, write_text_atomic
 from stages.base import GraspStage
 
 __all__ = [
@@ -257,20 +267,59 @@ class DatasetStage(GraspStage):
         )
         return {"grasps": rows, "scenes": len(scenes), "left_out": left_out, "columns": merged[0].num_columns}
 
-    def publish(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> None:
-        """Lay out ``dest/dataset`` (module docstring); skipped when the folder already shows this shard."""
+    def publish(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> list[str]:
+        """Lay out ``dest/dataset`` (module docstring), or repair it when it already shows this shard.
+
+        Every run checks the folder fast against the publish record (:func:`check_published`: a file linked to
+        its shard by inode and size, any other by size, mtime and inode): damaged or missing links are made
+        again, stray files in the dataset's folders removed, and a damaged file of any other kind (plots,
+        ACRONYM files, the card) makes the whole folder again. Returns what it repaired (nothing for a new
+        dataset or an intact folder).
+        """
         if "dataset" not in shards.ids(self.name):
-            return  # the task failed: leave the last good folder as it is
+            return []  # the task failed: leave the last good folder as it is
         entry = shards.entry(self.name, "dataset")
         root = Path(dest) / self.name
-        if _up_to_date(root, entry.key):
-            return
+        record_path = stage_dir(dest, self.name) / PUBLISH_RECORD
+        check = check_published(root, _read_record(record_path), shards, entry.key)
+        if check.remake is None and not check.rebuild:
+            if check.relink or check.stray or check.refresh:
+                record = check.record
+                for rel in check.relink:
+                    stage, task_id = record["files"][rel]["source"]
+                    _link(shards.path(stage, task_id), root / rel)
+                    linked = _same_file(root / rel, shards.path(stage, task_id))
+                    record["files"][rel] = _file_record(root, rel, {**record["files"][rel], "linked": linked})
+                for rel in check.stray:
+                    (root / rel).unlink(missing_ok=True)
+                for rel in check.refresh:
+                    record["files"][rel] = _file_record(root, rel, record["files"][rel])
+                write_text_atomic(record_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+            return check.done_lines()
+        record_path.unlink(missing_ok=True)  # a folder half made again has no record: the next run remakes it
+        record = self._lay_out(params, shards, root, entry)
+        write_text_atomic(record_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+        return check.done_lines()
+
+    def publish_status(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> list[str]:
+        """What :meth:`publish` would repair (the same check), one line per file; empty when the folder is intact.
+        A shard missing from ``shards`` is one the run remakes: the published file linked to it is damaged."""
+        key = shards.key(self.name, "dataset") if "dataset" in shards.ids(self.name) else None
+        root = Path(dest) / self.name
+        check = check_published(root, _read_record(stage_dir(dest, self.name) / PUBLISH_RECORD), shards, key)
+        return check.status_lines()
+
+    def _lay_out(self, params: DatasetTaskParams, shards: Upstream, root: Path, entry: Entry) -> dict[str, Any]:
+        """Publish the whole folder: links, config.yaml, ACRONYM files, card and plots; returns the publish record
+        of the files laid out."""
         files: dict[str, dict[str, Any]] = {}
+        sources: dict[str, tuple[str, str]] = {}
 
         def shard(stage: str, task_id: str, rel: str) -> None:
             e = shards.entry(stage, task_id)
             _link(shards.path(stage, task_id), root / rel)
             files[rel] = {"sha256": e.sha256, "bytes": e.bytes, "source": f"{stage}/{e.key}"}
+            sources[rel] = (stage, task_id)
 
         shard(self.name, "dataset", "grasps.parquet")
         scenes, left_out = included_scenes(shards, self.tables)
@@ -290,15 +339,28 @@ class DatasetStage(GraspStage):
             }
             for stage in (*self.inputs, self.name)
         }
+        warnings = [f"{stage}: {text}" for stage in (*self.inputs, self.name) for text in shards.warnings(stage)]
         provenance = {
             "dataset_key": entry.key,
             "tables": list(self.tables),
             "left_out": left_out,
+            "warnings": warnings,
             "stages": stages,
             "versions": package_versions(),
             "config": to_dict(params.config),
         }
-        build_card(root, provenance, files, card_settings(params.dataset))  # also removes an earlier dataset's files
+        card = build_card(root, provenance, files, card_settings(params.dataset))  # also removes stray files
+        record: dict[str, Any] = {"dataset_key": entry.key, "card_version": CARD_VERSION, "files": {}}
+        for rel, info in card["files"].items():
+            known = {"sha256": info["sha256"]}
+            if rel in sources:
+                stage, task_id = sources[rel]
+                known["source"] = [stage, task_id]
+                known["linked"] = _same_file(root / rel, shards.path(stage, task_id))
+            record["files"][rel] = _file_record(root, rel, known)
+        for rel in CARD_FILES:
+            record["files"][rel] = _file_record(root, rel, {"sha256": sha256_file(root / rel)})
+        return record
 
 
 def config_yaml(sections: Mapping[str, Any]) -> str:
@@ -334,21 +396,182 @@ def _link(src: Path, dst: Path) -> None:
             shutil.copyfile(src, tmp)
 
 
-def _up_to_date(root: Path, key: str) -> bool:
-    """The folder was published from the shard ``key`` by this card version and no listed file is missing."""
+PUBLISH_RECORD = "published.json"
+"""The publish step's record of the files it laid out: ``OUT/shards/dataset/published.json``, with the engine's
+files of the stage (it describes files on one disk, not the data, so it is not part of the dataset). Per file
+(relative to ``OUT/dataset``): ``bytes``, ``mtime_ns``, ``ino``, ``dev``, ``sha256``, and for a shard's link its
+``source`` ``[stage, task id]`` and whether it is ``linked`` (a hard link) or a copy."""
+
+CARD_FILES = ("card.json", "card.md")
+"""Published files that card.json does not list (itself and its rendering)."""
+
+
+def _read_record(path: Path) -> dict[str, Any] | None:
     try:
-        card = json.loads((root / "card.json").read_text())
-    except (OSError, json.JSONDecodeError):
+        record = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("files"), dict) else None
+
+
+def _file_record(root: Path, rel: str, known: Mapping[str, Any]) -> dict[str, Any]:
+    """``known`` (sha256, source, linked) with the file's size, mtime and inode as they are now."""
+    st = os.stat(root / rel)
+    return {**known, "bytes": st.st_size, "mtime_ns": st.st_mtime_ns, "ino": st.st_ino, "dev": st.st_dev}
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
         return False
-    if card.get("dataset_key") != key or card.get("card_version") != CARD_VERSION or not (root / "card.md").exists():
-        return False
-    for rel, info in card.get("files", {}).items():
+
+
+def _unchanged(st: os.stat_result, info: Mapping[str, Any]) -> bool:
+    """The file's size, mtime and inode are those the record holds (the fast check: no read)."""
+    return (st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev) == tuple(
+        info.get(k) for k in ("bytes", "mtime_ns", "ino", "dev")
+    )
+
+
+@dataclasses.dataclass
+class PublishCheck:
+    """What :func:`check_published` found in a published folder, and what :meth:`DatasetStage.publish` does."""
+
+    record: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The publish record read (updated by publish when it repairs)."""
+    remake: str | None = None
+    """The whole folder is laid out: :data:`FIRST` (no folder yet), :data:`OTHER` (it shows another dataset
+    shard) or why (no record of its files, another card version). None: it is repaired file by file."""
+    problems: list[tuple[str, str]] = dataclasses.field(default_factory=list)
+    """``(path, what)``: missing, damaged or not part of the dataset."""
+    relink: list[str] = dataclasses.field(default_factory=list)
+    """Shards' links to make again."""
+    stray: list[str] = dataclasses.field(default_factory=list)
+    """Files in the dataset's folders that the dataset does not list: removed."""
+    refresh: list[str] = dataclasses.field(default_factory=list)
+    """Files with another mtime or inode but their recorded sha256 (rewritten with the same bytes, e.g. by
+    ``gen report``): only their record is updated."""
+    rebuild: bool = False
+    """A file that is not a shard's link is damaged or missing: the whole folder is laid out again."""
+
+    def status_lines(self) -> list[str]:
+        """For ``gen status``: what a run will do."""
+        if self.remake == FIRST:
+            return ["not published yet (will be)"]
+        if self.remake == OTHER:
+            return ["the folder holds another dataset (will be made again)"]
+        if self.remake is not None:
+            return [f"the folder will be made again ({self.remake})"]
+        lines = [f"{rel} {what} (will be {'removed' if what == STRAY else 'replaced'})" for rel, what in self.problems]
+        return _at_most(lines, "file(s) more to repair")
+
+    def done_lines(self) -> list[str]:
+        """For the run's report: what publish did (a first or new dataset's publish is no repair: nothing)."""
+        if self.remake in (FIRST, OTHER):
+            return []
+        if self.remake is not None:
+            return [f"made the folder again ({self.remake})"]
+        lines = [f"{'removed' if what == STRAY else 'replaced'} {rel} ({what})" for rel, what in self.problems]
+        return _at_most(lines, "file(s) more repaired")
+
+
+STRAY = "not part of the dataset"
+PROBLEMS_LISTED = 8
+"""At most this many files are named in the lines of a :class:`PublishCheck`; the rest are counted."""
+
+
+def _at_most(lines: list[str], more: str) -> list[str]:
+    if len(lines) <= PROBLEMS_LISTED:
+        return lines
+    return lines[: PROBLEMS_LISTED - 1] + [f"{len(lines) - PROBLEMS_LISTED + 1} {more}"]
+FIRST = "first"
+OTHER = "other"
+
+
+def _card_key(root: Path) -> str | None:
+    try:
+        return json.loads((root / "card.json").read_text()).get("dataset_key")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        return None
+
+
+def check_published(root: Path, record: dict[str, Any] | None, shards: Upstream, key: str | None) -> PublishCheck:
+    """Compare a published dataset folder with its publish record, fast: stats, no reads (module docstring).
+
+    A shard's link is intact when it is the shard's file (same inode) with the shard's size; the shards in
+    ``shards`` are the ones the run verified, so this costs nothing. A link whose shard is not in ``shards`` (a
+    damaged shard the run remakes) is damaged. Any other file is intact when its size, mtime and inode are the
+    recorded ones; when they are not, its sha256 decides (so a file rewritten with the same bytes is not
+    replaced). ``key`` is the dataset shard's key (None when it is not known: it is being remade).
+    """
+    check = PublishCheck(record=record or {})
+    if record is None:
+        if not (root / "card.json").exists():
+            check.remake = FIRST
+        elif key is not None and _card_key(root) != key:
+            check.remake = OTHER
+        else:
+            check.remake = "the folder has no record of its files"
+    elif key is not None and record.get("dataset_key") != key:
+        check.remake = OTHER
+    elif not root.is_dir():
+        check.remake = "the folder is missing"
+    elif record.get("card_version") != CARD_VERSION:
+        check.remake = "the card's version changed"
+    if check.remake is not None:
+        return check
+    files: dict[str, Any] = record["files"]
+    for rel, info in files.items():
         try:
-            if (root / rel).stat().st_size != info["bytes"]:
-                return False
+            st = os.stat(root / rel)
         except OSError:
-            return False
-    return True
+            st = None
+        source = info.get("source")
+        if source is not None:
+            stage, task_id = source
+            entry = shards.entry(stage, task_id) if stage in shards.stages() and task_id in shards.ids(stage) else None
+            if st is None or entry is None:
+                check.problems.append((rel, "missing" if st is None else "damaged"))
+                check.relink.append(rel)
+                if entry is not None and entry.sha256 != info.get("sha256"):
+                    check.rebuild = True  # the shard was remade with other bytes: the card changes too
+                continue
+            shard_st = os.stat(shards.path(stage, task_id))
+            if (st.st_ino, st.st_dev) == (shard_st.st_ino, shard_st.st_dev) and st.st_size == entry.bytes:
+                continue
+            if not info.get("linked") and _unchanged(st, info):
+                continue  # a copy (no hard links there), untouched since it was made
+            if st.st_size != entry.bytes or sha256_file(root / rel) != entry.sha256:
+                check.problems.append((rel, "damaged"))
+                check.relink.append(rel)
+            elif info.get("linked"):
+                check.relink.append(rel)  # an intact separate copy of a linked file: linked again, silently
+            else:
+                check.refresh.append(rel)
+            if entry.sha256 != info.get("sha256"):
+                check.rebuild = True
+            continue
+        if st is None:
+            check.problems.append((rel, "missing"))
+            check.rebuild = True
+        elif not _unchanged(st, info):
+            if sha256_file(root / rel) == info.get("sha256"):
+                check.refresh.append(rel)
+            else:
+                check.problems.append((rel, "damaged"))
+                check.rebuild = True
+    for sub in MANAGED:
+        try:
+            found = sorted(os.scandir(root / sub), key=lambda d: d.name)
+        except OSError:
+            continue
+        for item in found:
+            rel = f"{sub}/{item.name}"
+            if rel not in files and not item.name.startswith(".") and item.is_file(follow_symlinks=False):
+                check.problems.append((rel, STRAY))
+                check.stray.append(rel)
+    return check
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import glob
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -104,13 +105,8 @@ def discover(params: ObjectsParams) -> list[tuple[str, Path, float]]:
     if params.bundled:
         for name, entry in catalog().items():
             add(name, ASSETS / entry["file"], float(entry["density"]))
-    for i, pattern in enumerate(params.paths):
-        matches = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
-        meshes = [p for p in matches if p.is_file() and p.suffix.lower() in MESH_SUFFIXES]
-        if not meshes:
-            raise ConfigError(f"objects.paths[{i}]: {pattern!r} matches no mesh file ({', '.join(MESH_SUFFIXES)})")
-        for path in meshes:
-            add(path.stem, path, params.density)
+    for path in user_meshes(params):
+        add(path.stem, path, params.density)
     if params.include:
         missing = sorted(set(params.include) - set(found))
         if missing:
@@ -119,6 +115,46 @@ def discover(params: ObjectsParams) -> list[tuple[str, Path, float]]:
     if not found:
         raise ConfigError("objects: no objects selected (bundled is false and paths is empty)")
     return [(name, path, density) for name, (path, density) in sorted(found.items())]
+
+
+def user_meshes(params: ObjectsParams) -> list[Path]:
+    """The mesh files ``objects.paths`` matches, pattern by pattern (before ``objects.include``).
+
+    Raises
+    ------
+    ConfigError
+        A pattern matching no mesh file.
+    """
+    found = []
+    for i, pattern in enumerate(params.paths):
+        matches = sorted(Path(p) for p in glob.glob(pattern, recursive=True))
+        meshes = [p for p in matches if p.is_file() and p.suffix.lower() in MESH_SUFFIXES]
+        if not meshes:
+            raise ConfigError(f"objects.paths[{i}]: {pattern!r} matches no mesh file ({', '.join(MESH_SUFFIXES)})")
+        found.extend(meshes)
+    return found
+
+
+def left_out_by_include(params: ObjectsParams) -> list[Path]:
+    """The meshes ``objects.paths`` matches that ``objects.include`` leaves out (sorted, each once)."""
+    if not params.include or not params.paths:
+        return []
+    return sorted({p for p in user_meshes(params) if p.stem not in params.include})
+
+
+REPAIR_NOT_WARNED = ("duplicate vertices", "not watertight after repair")
+"""Repair notes that are no warning: merging duplicate vertices changes no geometry (STL files store every
+triangle's corners apart), and a mesh left open already gets the convex-hull mass warning."""
+
+
+def object_warnings(path: Path, warnings: Sequence[str], repair_notes: Sequence[str]) -> list[str]:
+    """What a user should hear about one prepared mesh: the unit guess and mass notes of mesh preparation, and
+    the repairs that changed its geometry, each naming the file."""
+    out = list(warnings)
+    repairs = [n for n in repair_notes if not any(skip in n for skip in REPAIR_NOT_WARNED)]
+    if repairs:
+        out.append(f"{path.name}: mesh repaired: {'; '.join(repairs)}")
+    return out
 
 
 class ObjectsStage(GraspStage):
@@ -131,6 +167,16 @@ class ObjectsStage(GraspStage):
         return [
             Task(id=name, payload={"density": density, "suffix": path.suffix.lower()}, inputs=(str(path),))
             for name, path, density in discover(params)
+        ]
+
+    def plan_warnings(self, params: ObjectsParams, upstream: Upstream) -> list[str]:
+        left = left_out_by_include(params)
+        if not left:
+            return []
+        names = ", ".join(str(p) for p in left)
+        return [
+            f"objects.include leaves out {len(left)} mesh(es) that objects.paths matches: {names} "
+            "(add their names to objects.include to use them)"
         ]
 
     def run(
@@ -162,7 +208,7 @@ class ObjectsStage(GraspStage):
             "mass": prepared.mass.mass,
             "parts": len(prepared.convex_parts),
             "stable_poses": int(len(prepared.stable_probabilities)),
-            "warnings": list(prepared.warnings),
+            "warnings": object_warnings(path, prepared.warnings, prepared.repair.notes),
         }
 
 

@@ -7,16 +7,15 @@ the steps and the shard layout); this module only fans the work out and writes t
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
-os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
+import graspgen.sim.gl  # noqa: F401 - imported first: chooses MUJOCO_GL before anything imports mujoco
 from graspgen.io.files import write_h5  # noqa: E402
 from graspgen.io.objects import read_object
-from graspgen.sim.scenes import ScenesParams, make_scene
+from graspgen.sim.scenes import ScenesParams, check_rendering, make_scene
 from pipeline.errors import ConfigError, StageError  # noqa: E402
 from pipeline.stage import RunContext, Task, Upstream  # noqa: E402
 from stages.base import GraspStage
@@ -27,6 +26,10 @@ class ScenesStage(GraspStage):
     inputs = ("objects",)
     version = 1
     ext = "h5"
+
+    def check(self, params: ScenesParams) -> None:
+        if params.num_scenes:
+            check_rendering(params)  # images asked for where OpenGL cannot render: say so before any work
 
     def tasks(self, params: ScenesParams, upstream: Upstream) -> list[Task]:
         library = upstream.ids("objects")

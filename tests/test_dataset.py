@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
+import subprocess
 
 import numpy as np
 import pyarrow as pa
@@ -19,7 +21,7 @@ from graspgen_cli.app import app
 from pipeline.config import load_config, to_dict
 from pipeline.keys import sha256_file
 from pipeline.repro import shard_hashes
-from pipeline.scheduler import committed, run_pipeline
+from pipeline.scheduler import committed, run_pipeline, status
 from pipeline.store import stage_dir
 from stages.project import PROJECT
 
@@ -254,3 +256,154 @@ def test_acronym_export_round_trips_the_poses(run):
         assert (d / "acronym" / acr.object_file).is_file()
         mesh = (d / "acronym" / acr.object_file).read_text().splitlines()
         assert sum(line.startswith("v ") for line in mesh) > 0
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The published folder heals: status names what run will repair, run repairs it, validate passes.
+
+TABLE_STAGES = ("grasps", "rollouts", "robustness", "metrics")
+
+
+def copy_run(src, dst):
+    """A copy of a run folder that keeps its hard links: published shards stay links to the copied shards."""
+    subprocess.run(["cp", "-a", str(src), str(dst)], check=True)
+
+
+def flip_byte(path):
+    """Change one byte in the middle of ``path`` in place: same size, same inode (a link writes into its shard)."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    with open(path, "r+b") as f:
+        f.write(data)
+
+
+def shard_of(out, stage, task):
+    (entry,) = [e for e in committed(out, stage).values() if e.task == task]
+    return stage_dir(out, stage) / entry.file
+
+
+def states(cfg):
+    return {s.stage: s.state for s in status(PROJECT, cfg)}
+
+
+def status_text(out):
+    result = CliRunner().invoke(app, ["status", "--out", str(out)], env={"COLUMNS": "250"})
+    assert result.exit_code == 0, result.output
+    return " ".join(result.output.replace("│", " ").split())
+
+
+def test_status_names_damaged_published_files_and_run_replaces_them(run, tmp_path):
+    root, _ = run
+    out = tmp_path / "out"
+    copy_run(root / "out", out)
+    cfg = smoke(out, root / "cache")
+    assert set(states(cfg).values()) == {"done"}  # an untouched finished folder
+    d = out / "dataset"
+    scene = d / "scenes" / "scene_000002.h5"
+    assert os.path.samefile(scene, shard_of(out, "scenes", "scene_000002"))
+    flip_byte(scene)  # through the hard link: the scene shard is damaged too
+    flip_byte(d / "grasps.parquet")  # and the dataset shard
+    st = {s.stage: s for s in status(PROJECT, cfg)}
+    assert st["scenes"].state == "missing"
+    assert st["scenes"].reasons == ["1 task(s): its shard is missing or damaged (scene_000002)"]
+    assert all(st[t].state == "done" for t in ("objects", *TABLE_STAGES))  # same keys after the remake
+    assert st["dataset"].state == "missing"
+    assert st["dataset"].reasons == [
+        "1 task(s): its shard is missing or damaged (dataset)",
+        "published: grasps.parquet damaged (will be replaced)",
+        "published: scenes/scene_000002.h5 damaged (will be replaced)",
+    ]
+    text = status_text(out)
+    assert "published: grasps.parquet damaged (will be replaced)" in text
+    assert "published: scenes/scene_000002.h5 damaged (will be replaced)" in text
+    reports = {r.stage: r for r in run_pipeline(PROJECT, cfg)}
+    assert {s: r.ran for s, r in reports.items()} == {
+        "objects": 0, "scenes": 1, "grasps": 0, "rollouts": 0, "robustness": 0, "metrics": 0, "dataset": 1,
+    }
+    assert reports["dataset"].repaired == [
+        "replaced grasps.parquet (damaged)",
+        "replaced scenes/scene_000002.h5 (damaged)",
+    ]
+    assert os.path.samefile(scene, shard_of(out, "scenes", "scene_000002"))  # linked to the remade shard
+    assert os.path.samefile(d / "grasps.parquet", shard_of(out, "dataset", "dataset"))
+    result = invoke("validate", out)
+    assert result.exit_code == 0, result.output
+    assert set(states(cfg).values()) == {"done"}
+    again = run_pipeline(PROJECT, cfg)
+    assert all(r.ran == 0 and not r.repaired for r in again)
+
+
+def test_damaged_missing_and_stray_published_files_are_repaired(run, tmp_path):
+    root, _ = run
+    out = tmp_path / "out"
+    copy_run(root / "out", out)
+    cfg = smoke(out, root / "cache")
+    d = out / "dataset"
+    acronym = sorted((d / "acronym").glob("*.h5"))[0]
+    acronym.unlink()
+    flip_byte(d / "plots" / "outcomes.png")
+    (d / "plots" / "stray.png").write_bytes(b"x")
+    (d / "card.md").write_text("edited\n")
+    st = {s.stage: s for s in status(PROJECT, cfg)}
+    assert all(st[t].state == "done" for t in ("objects", "scenes", *TABLE_STAGES))
+    assert st["dataset"].state == "damaged" and st["dataset"].done == 1
+    rel = acronym.relative_to(d).as_posix()
+    assert st["dataset"].reasons == [
+        f"published: {rel} missing (will be replaced)",
+        "published: card.md damaged (will be replaced)",
+        "published: plots/outcomes.png damaged (will be replaced)",
+        "published: plots/stray.png not part of the dataset (will be removed)",
+    ]
+    reports = {r.stage: r for r in run_pipeline(PROJECT, cfg)}
+    assert all(r.ran == 0 for r in reports.values())
+    assert reports["dataset"].repaired == [
+        f"replaced {rel} (missing)",
+        "replaced card.md (damaged)",
+        "replaced plots/outcomes.png (damaged)",
+        "removed plots/stray.png (not part of the dataset)",
+    ]
+    result = invoke("validate", out)
+    assert result.exit_code == 0, result.output
+    assert set(states(cfg).values()) == {"done"}
+    assert (d / "card.md").read_text() == (root / "out" / "dataset" / "card.md").read_text()
+    # files rewritten with the same bytes (gen report) are intact: nothing to repair
+    assert invoke("report", out).exit_code == 0
+    assert set(states(cfg).values()) == {"done"}
+    assert all(not r.repaired for r in run_pipeline(PROJECT, cfg))
+    # the whole folder gone: made again
+    shutil.rmtree(d)
+    st = {s.stage: s for s in status(PROJECT, cfg)}
+    assert st["dataset"].reasons == ["published: the folder will be made again (the folder is missing)"]
+    reports = {r.stage: r for r in run_pipeline(PROJECT, cfg)}
+    assert reports["dataset"].repaired == ["made the folder again (the folder is missing)"]
+    assert invoke("validate", out).exit_code == 0
+
+
+def test_a_damaged_shard_is_named_by_status_and_only_it_is_run_again(run, tmp_path):
+    root, _ = run
+    out = tmp_path / "out"
+    copy_run(root / "out", out)
+    cfg = smoke(out, root / "cache")
+    shard = shard_of(out, "rollouts", "scene_000001")
+    flip_byte(shard)
+    st = {s.stage: s for s in status(PROJECT, cfg)}
+    assert st["rollouts"].state == "missing" and st["rollouts"].missing == 1
+    assert st["rollouts"].reasons == ["1 task(s): its shard is missing or damaged (scene_000001)"]
+    assert all(st[t].state == "done" for t in ("objects", "scenes", "grasps", "robustness", "metrics", "dataset"))
+    assert "its shard is missing or damaged (scene_000001)" in status_text(out)
+    reports = {r.stage: r for r in run_pipeline(PROJECT, cfg)}
+    assert {s: r.ran for s, r in reports.items() if r.ran} == {"rollouts": 1}
+    assert not reports["dataset"].repaired
+    assert set(states(cfg).values()) == {"done"}
+    assert invoke("validate", out).exit_code == 0
+
+
+def test_the_card_lists_the_warnings(run):
+    root, _ = run
+    card = json.loads((root / "out" / "dataset" / "card.json").read_text())
+    assert card["warnings"] == []  # the smoke objects are clean
+    assert "## Warnings" not in render_card(card)
+    card["warnings"] = ["objects: mug_mm: mug_mm.obj: largest extent 95.0 units, assumed millimetres [*]"]
+    md = render_card(card)
+    assert "## Warnings" in md
+    assert "- objects: mug_mm: mug_mm.obj: largest extent 95.0 units, assumed millimetres \\[\\*\\]" in md

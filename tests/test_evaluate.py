@@ -80,7 +80,8 @@ def gen(*args):
 
 def test_gen_evaluate_labels_acronym_grasps_in_input_order(acronym_file, tmp_path):
     out = tmp_path / "labels.parquet"
-    result = gen("evaluate", "--grasps", acronym_file, "--mesh-root", tmp_path, "--gripper", "panda", "--out", out)
+    result = gen("evaluate", "--grasps", acronym_file, "--mesh-root", tmp_path, "--gripper", "panda", "--out", out,
+                 "--protocol", "table")
     assert result.exit_code == 0, result.output
     assert "8 grasps (free space): no_contact_established 3, success 5" in result.output
     assert "agreement with the file's success label: 8/8" in result.output
@@ -187,3 +188,50 @@ def test_error_messages(acronym_file, tmp_path):
     with pytest.raises(ValueError, match=r"T_tcp\[1\]: the rotation block is not a proper rotation"):
         evaluate_grasps(tmp_path / "meshes" / "box.obj", 0.001, np.stack([np.eye(4), np.diag([1, 1, -1, 1.0])]),
                         None, "panda")
+
+
+def test_acronym_files_default_to_the_acronym_protocol(acronym_file, tmp_path):
+    out = tmp_path / "labels.parquet"
+    result = gen("evaluate", "--grasps", acronym_file, "--mesh-root", tmp_path, "--gripper", "panda", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "8 grasps (acronym protocol, free space): no_contact_established 3, success 5" in result.output
+    table = pq.read_table(out)
+    assert table.column("outcome").to_pylist() == EXPECTED
+    meta = json.loads(table.schema.metadata[METADATA_KEY.encode()])
+    assert meta["protocol"] == "acronym" and meta["lift"]["acronym"]["shake_frequency"] == 4.0
+    # The jaws open fully (the Panda's 80 mm): the width is the protocol's, not the grasp's.
+    assert set(table.column("width_source").to_pylist()) == {"protocol"}
+    assert table.column("width").to_pylist() == [pytest.approx(0.08)] * len(GRASPS)
+    # ACRONYM's motion measures: the held 0.2 kg box hardly moves; no shake without contact.
+    held = np.array(EXPECTED) == 5
+    shaking = table.column("motion_shaking_linear").to_numpy()
+    assert (shaking[held] < 2e-3).all() and np.isnan(shaking[~held]).all()
+    assert np.isfinite(table.column("motion_closing_angular").to_numpy()).all()
+    # Contacts are in the object frame (mapped with the box's pose when closing ended): on the x faces at +-25 mm.
+    points = np.asarray(table.column("contact_points")[0].as_py()).reshape(-1, 3)
+    np.testing.assert_allclose(np.abs(points[:, 0]), 0.025, atol=1.5e-3)
+    # --support means the table protocol (the old option keeps working); acronym on a table is refused.
+    support = gen("evaluate", "--grasps", acronym_file, "--mesh-root", tmp_path, "--gripper", "panda", "--out",
+                  tmp_path / "support.parquet", "--support")
+    assert support.exit_code == 0 and "grasps (support plane)" in support.output, support.output
+    refused = gen("evaluate", "--grasps", acronym_file, "--mesh-root", tmp_path, "--gripper", "panda", "--out",
+                  tmp_path / "refused.parquet", "--support", "--protocol", "acronym")
+    assert refused.exit_code == 2 and "'acronym' is a free-space protocol" in " ".join(refused.output.split())
+    unknown = gen("evaluate", "--grasps", acronym_file, "--mesh-root", tmp_path, "--gripper", "panda", "--out",
+                  tmp_path / "unknown.parquet", "--protocol", "flex")
+    assert unknown.exit_code == 2 and "protocol: must be one of table, acronym" in " ".join(unknown.output.split())
+
+
+def test_evaluate_grasps_protocol_argument_and_the_table_default(acronym_file, tmp_path):
+    T = np.array([T for _, T, _ in GRASPS])
+    mesh = tmp_path / "meshes" / "box.obj"
+    params = EvaluateParams(friction=0.8, mass=0.2)
+    acronym = evaluate_grasps(mesh, 0.001, T, None, "panda", params, protocol="acronym")
+    assert acronym.column("outcome").to_pylist() == EXPECTED
+    assert set(acronym.column("decided_in").to_pylist()) == {"end", "closing"}
+    table = evaluate_grasps(mesh, 0.001, T, None, "panda", params)  # the default protocol: table
+    assert json.loads(table.schema.metadata[METADATA_KEY.encode()])["protocol"] == "table"
+    assert set(table.column("width_source").to_pylist()) == {"raycast", "open"}
+    assert np.isnan(table.column("motion_shaking_linear").to_numpy()).all()  # no shake by default
+    with pytest.raises(ValueError, match="free-space protocol"):
+        evaluate_grasps(mesh, 0.001, T, None, "panda", params, protocol="acronym", free_space=False)

@@ -1,16 +1,25 @@
-"""Tests of stages/grippers.py: gripper data, the MjSpec builder, attach, helpers and grasp-and-lift physics."""
+"""Tests of graspgen/sim/grippers.py: gripper data and files, the MjSpec builder, attach, helpers, grasp-and-lift
+physics, the bundled grippers against their published figures, and the gripper picture."""
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import importlib.util
+import json
 import time
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+import trimesh
 
 from graspgen.errors import GraspGenError, SettingsError
 from graspgen.sim import grippers as G
+
+REPO = Path(__file__).resolve().parent.parent
+PANDA_STL = REPO / "assets" / "grippers" / "panda" / "franka_gripper_collision_mesh.stl"
 
 GRIPPER_NAMES = sorted(G.GRIPPERS)
 BOX_HALF = 0.025  # 5 cm box
@@ -112,6 +121,32 @@ def _grasp_and_lift(model, data, *, lift: float = 0.2, lift_time: float = 1.0) -
     }
 
 
+def _geom_vertices(model, data, gid: int) -> np.ndarray:
+    """(n, 3) world vertices of a box (its corners) or mesh geom."""
+    R, p = data.geom_xmat[gid].reshape(3, 3), data.geom_xpos[gid]
+    if model.geom_type[gid] == mujoco.mjtGeom.mjGEOM_MESH:
+        m = model.geom_dataid[gid]
+        local = model.mesh_vert[model.mesh_vertadr[m]:model.mesh_vertadr[m] + model.mesh_vertnum[m]]
+    else:
+        local = np.array(np.meshgrid(*[[-h, h] for h in model.geom_size[gid]])).reshape(3, -1).T
+    return local @ R.T + p
+
+
+def _in_tcp(model, data, points: np.ndarray) -> np.ndarray:
+    T = G.gripper_pose(model, data)
+    return (points - T[:3, 3]) @ T[:3, :3]
+
+
+def _pad_faces(model, data) -> tuple[float, float, float, float]:
+    """TCP-frame x of the left and right pads' contact faces (the left pad's largest x, the right's smallest), and
+    the lowest and highest z of the pads."""
+    left, right = G.pad_geom_ids(model)
+    pl = _in_tcp(model, data, _geom_vertices(model, data, left[0]))
+    pr = _in_tcp(model, data, _geom_vertices(model, data, right[0]))
+    both = np.vstack([pl, pr])
+    return float(pl[:, 0].max()), float(pr[:, 0].min()), float(both[:, 2].min()), float(both[:, 2].max())
+
+
 def _pad_contacts(model, data) -> tuple[bool, bool]:
     left, right = G.pad_geom_ids(model)
     box_geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "box")
@@ -142,7 +177,8 @@ def test_registry_holds_the_three_grippers():
 def test_unknown_gripper_raises_settings_error_listing_choices():
     with pytest.raises(SettingsError) as err:
         G.load_gripper("x")
-    assert str(err.value) == "gripper: unknown 'x'; choose one of: box_jaw, panda, robotiq_2f85"
+    assert str(err.value) == ("gripper: unknown 'x'; choose one of: box_jaw, panda, robotiq_2f85 (or give the path "
+                              "of a gripper file: .yaml, .yml, .json)")
     assert isinstance(err.value, GraspGenError)
 
 
@@ -220,17 +256,21 @@ def test_gripper_compiles_with_tcp_frame_at_origin(name):
     # Geoms: named by role, gripper collision bits, one group.
     roles = G.gripper_geom_ids(model)
     assert len(roles["left_pad"]) == len(roles["right_pad"]) == 1
-    assert len(roles["finger"]) == 2 and len(roles["palm"]) == len(spec.palm_boxes)
+    assert len(roles["finger"]) == 2 * max(1, len(spec.finger_geoms))
+    assert len(roles["palm"]) == len(spec.palm_geoms or spec.palm_boxes)
     for gid in roles["all"]:
         assert model.geom_contype[gid] == G.GRIPPER_CONTYPE
         assert model.geom_conaffinity[gid] == G.GRIPPER_CONAFFINITY
         assert model.geom_group[gid] == G.GRIPPER_GEOM_GROUP
     for gid in roles["pad"]:
         assert model.geom_condim[gid] == spec.pad_condim
-        np.testing.assert_allclose(model.geom_size[gid] * 2, spec.pad_size)
-    # Hand base (flange) behind the TCP: the palm reaches back to z = -tcp_offset.
-    palm_min_z = min(model.geom_pos[g][2] - model.geom_size[g][2] for g in roles["palm"])
-    assert palm_min_z == pytest.approx(-spec.tcp_offset, abs=1e-9)
+        if spec.pad_geom is None:
+            np.testing.assert_allclose(model.geom_size[gid] * 2, spec.pad_size)
+    # Hand base (flange / hand frame) behind the TCP: the palm reaches back to z = -tcp_offset (the Panda's hand
+    # mesh 25.9 mm further, behind its hand frame).
+    palm_min_z = min(_geom_vertices(model, data, g)[:, 2].min() for g in roles["palm"])
+    behind = 0.0 if spec.name != "panda" else 0.0259248
+    assert palm_min_z == pytest.approx(-spec.tcp_offset - behind, abs=1e-6)
 
 
 @pytest.mark.parametrize("name", GRIPPER_NAMES)
@@ -246,10 +286,14 @@ def test_width_tracks_command_and_pads_stay_centred(name):
         _settle(model, data, 1.0)
         assert G.gripper_width(model, data) == pytest.approx(width, abs=1e-3)
         pl, pr = data.geom_xpos[left[0]], data.geom_xpos[right[0]]
-        np.testing.assert_allclose((pl + pr) / 2.0, 0.0, atol=1e-3)  # midpoint of the pad centres = TCP origin
-        # The pads face each other along TCP x: centre separation = width + pad thickness, no y/z offset.
-        assert pr[0] - pl[0] == pytest.approx(width + spec.pad_size[0], abs=1e-3)
-        np.testing.assert_allclose((pr - pl)[1:], 0.0, atol=1e-6)
+        np.testing.assert_allclose(((pl + pr) / 2.0)[:2], 0.0, atol=1e-3)  # pads symmetric about the TCP
+        # The pads' contact faces are `width` apart along TCP x, midway around the TCP origin, and the pads are
+        # centred on the TCP plane z = 0 (a mesh pad: its extent along z, whatever its centroid).
+        left_face, right_face, z_lo, z_hi = _pad_faces(model, data)
+        assert right_face - left_face == pytest.approx(width, abs=1e-3)
+        assert (right_face + left_face) / 2.0 == pytest.approx(0.0, abs=1e-3)
+        assert (z_lo + z_hi) / 2.0 == pytest.approx(0.0, abs=1e-3)
+        assert abs((pr - pl)[2]) < 1e-6  # the left pad is the right one turned about z: same height
     assert data.ncon == 0  # closed to width 0 (pads touching) without self-contacts
 
 
@@ -370,3 +414,239 @@ def test_default_physics_settings_let_a_heavy_box_creep():
         cone="pyramidal", impratio=1.0))))
     assert ours["slip"] < 1e-3, ours
     assert default["slip"] > 3e-3, default
+
+
+def test_panda_mesh_grasps_and_lifts_a_box():
+    model, data = _compile(_box_world(0.8, gripper="panda"))
+    res = _grasp_and_lift(model, data)
+    assert res["dz"] > 0.15, res
+    assert res["slip"] < 1e-3, res
+    assert res["width"] == pytest.approx(2 * BOX_HALF, abs=1.5e-3), res
+    assert _pad_contacts(model, data) == (True, True)
+
+
+# ------------------------------------------------------------------------------------------------- published figures
+
+
+def _stl_parts() -> dict[str, np.ndarray]:
+    """ACRONYM's Franka collision mesh split into hand and fingers: vertices in the TCP frame (hand z - 0.1034)."""
+    parts = trimesh.load(PANDA_STL, force="mesh").split(only_watertight=False)
+    pick = {"right": lambda p: p.bounds[0, 0] > 0.02, "left": lambda p: p.bounds[1, 0] < -0.02,
+            "hand": lambda p: p.bounds[0, 0] < 0.0 < p.bounds[1, 0]}
+    out = {}
+    for name, test in pick.items():
+        (part,) = [p for p in parts if test(p)]
+        out[name] = part.vertices - [0.0, 0.0, 0.1034]
+    return out
+
+
+def test_panda_matches_acronyms_figures_and_mesh():
+    """Panda: TCP 0.1034 m along z from the hand frame, 0-80 mm, pads centred on the TCP plane open and closed, and
+    the compiled model's hand, fingers and pads are ACRONYM's collision mesh."""
+    spec = G.load_gripper("panda")
+    assert (spec.min_width, spec.max_width, spec.tcp_offset, spec.force_limit) == (0.0, 0.08, 0.1034, 70.0)
+    assert spec.uses_meshes and spec.pad_size[1:] == (0.0174, 0.0176)
+    gspec = G.build_gripper(spec)
+    gspec.option.gravity = [0.0, 0.0, 0.0]
+    model, data = _compile(gspec)
+    roles = G.gripper_geom_ids(model)
+    stl = _stl_parts()
+    face = stl["right"][stl["right"][:, 0] < stl["right"][:, 0].min() + 5e-4]  # the fingertip's flat contact face
+    assert abs((face[:, 2].min() + stl["right"][:, 2].max()) / 2) < 2e-4  # ACRONYM's TCP: midway along that face
+    assert abs(face[:, 1].min() + face[:, 1].max()) / 2 < 1e-4  # and across it
+    for width in (spec.max_width, spec.min_width):
+        G.set_gripper_width(model, data, width, instant=True)
+        left_face, right_face, z_lo, z_hi = _pad_faces(model, data)
+        assert (left_face, right_face) == (pytest.approx(-width / 2, abs=1e-9), pytest.approx(width / 2, abs=1e-9))
+        assert G.gripper_width(model, data) == pytest.approx(width, abs=1e-9)
+        # The pads are the fingertips from where the flat face begins to the tip: centred on the TCP plane.
+        assert (z_lo, z_hi) == (pytest.approx(face[:, 2].min(), abs=1e-6), pytest.approx(stl["right"][:, 2].max(),
+                                                                                          abs=1e-6))
+        assert abs(z_lo + z_hi) / 2 < 2e-4
+        shift = np.array([width / 2 - face[:, 0].min(), 0.0, 0.0])  # the fingers slide; 0.13 mm face alignment
+        for side, sign, pad in (("right", 1.0, roles["right_pad"][0]), ("left", -1.0, roles["left_pad"][0])):
+            jaw = np.vstack([_in_tcp(model, data, _geom_vertices(model, data, g))
+                             for g in (pad, *[f for f in roles["finger"] if model.geom_bodyid[f]
+                                              == model.geom_bodyid[pad]])])
+            expect = stl[side] + sign * shift
+            np.testing.assert_allclose(jaw.min(axis=0), expect.min(axis=0), atol=1e-6)
+            np.testing.assert_allclose(jaw.max(axis=0), expect.max(axis=0), atol=1e-6)
+            # The pad's contact face (its vertices on the face plane) is the fingertip's face, centred on the TCP.
+            pad_v = _in_tcp(model, data, _geom_vertices(model, data, pad))
+            on_face = pad_v[np.abs(pad_v[:, 0] - sign * width / 2) < 5e-4]
+            stl_face = expect[np.abs(expect[:, 0] - sign * width / 2) < 5e-4]
+            centre = (on_face.min(axis=0) + on_face.max(axis=0)) / 2
+            np.testing.assert_allclose(centre[1:], (stl_face.min(axis=0) + stl_face.max(axis=0))[1:] / 2, atol=1e-6)
+            np.testing.assert_allclose(centre, [sign * width / 2, 0.0, 0.0], atol=2e-4)
+            assert sign * _in_tcp(model, data, data.geom_xpos[pad][None])[0, 0] > width / 2  # pad behind its face
+    palm = np.vstack([_in_tcp(model, data, _geom_vertices(model, data, g)) for g in roles["palm"]])
+    np.testing.assert_allclose(palm.min(axis=0), stl["hand"].min(axis=0), atol=1e-6)
+    np.testing.assert_allclose(palm.max(axis=0), stl["hand"].max(axis=0), atol=1e-6)
+    assert trimesh.convex.convex_hull(palm).volume == pytest.approx(trimesh.convex.convex_hull(stl["hand"]).volume,
+                                                                     rel=1e-4)
+
+
+def test_2f85_and_box_jaw_figures():
+    f85 = G.load_gripper("robotiq_2f85")
+    assert (f85.min_width, f85.max_width, f85.tcp_offset) == (0.0, 0.085, 0.14)  # data sheet stroke, flange->pads
+    assert f85.pad_size == (0.008, 0.022, 0.0375) and not f85.uses_meshes
+    jaw = G.load_gripper("box_jaw")
+    assert (jaw.max_width, jaw.tcp_offset, jaw.pad_size) == (0.1, 0.1, (0.01, 0.03, 0.04))
+    for spec in (f85, jaw):
+        model, data = _compile(G.build_gripper(spec))
+        for width in (spec.max_width, spec.min_width):
+            G.set_gripper_width(model, data, width, instant=True)
+            left_face, right_face, z_lo, z_hi = _pad_faces(model, data)
+            assert (left_face, right_face, z_lo, z_hi) == pytest.approx(
+                (-width / 2, width / 2, -spec.pad_size[2] / 2, spec.pad_size[2] / 2), abs=1e-9)
+
+
+# ------------------------------------------------------------------------------------------------- gripper files
+
+
+def test_bundled_gripper_files_match_their_digests():
+    """The bundled gripper files count as code (their digests are in grippers.py): editing one must change it."""
+    files = sorted(p for p in G.GRIPPERS_DIR.rglob("*") if p.suffix in (".yaml", ".obj"))
+    found = {str(p.relative_to(G.GRIPPERS_DIR)): hashlib.sha256(p.read_bytes()).hexdigest()[:16] for p in files}
+    assert found == G.BUNDLED_DIGESTS, "update BUNDLED_DIGESTS in graspgen/sim/grippers.py"
+    for name in G.GRIPPERS:
+        assert G.gripper_files(name) == ()  # covered by the code fingerprint instead
+
+
+def test_panda_pieces_are_up_to_date(tmp_path):
+    """assets/make_grippers.py makes the committed convex pieces byte for byte from the vendored mesh."""
+    spec = importlib.util.spec_from_file_location("make_grippers", REPO / "assets" / "make_grippers.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main(tmp_path)
+    for name in ("hand.obj", "finger.obj", "pad.obj"):
+        assert (tmp_path / name).read_bytes() == (G.GRIPPERS_DIR / "panda" / name).read_bytes(), name
+
+
+def _finger_obj(path: Path, x0: float, thickness: float, z0: float, z1: float) -> None:
+    box = trimesh.creation.box(extents=(thickness, 0.02, z1 - z0))
+    box.apply_translation((x0 + thickness / 2, 0.0, (z0 + z1) / 2))
+    box.export(path)
+
+
+def _user_file(folder: Path, **change) -> Path:
+    """A user's gripper: boxes for the palm, an OBJ finger link and pad, hand-base frame, 60 mm stroke."""
+    _finger_obj(folder / "link.obj", 0.035, 0.01, 0.02, 0.09)  # hand frame: the link from z 0.02 to 0.09
+    _finger_obj(folder / "pad.obj", 0.03, 0.005, 0.09, 0.11)  # pad face at x = 0.03, z 0.09..0.11 (TCP at 0.1)
+    data = {
+        "name": "my_hand", "frame": "base", "max_width": 0.06, "tcp_offset": 0.1, "force_limit": 40.0,
+        "closing_speed": 0.05, "finger_mass": 0.02, "body_mass": 0.3, "source": "a test hand",
+        "palm_geoms": [{"size": [0.12, 0.04, 0.02], "pos": [0.0, 0.0, 0.01]}],
+        "finger_geoms": [{"mesh": "link.obj"}], "pad_geom": {"mesh": "pad.obj"},
+    }
+    data.update(change)
+    path = folder / "my_hand.yaml"
+    path.write_text(json.dumps(data))  # JSON is YAML
+    return path
+
+
+def test_user_gripper_file_round_trip(tmp_path):
+    path = _user_file(tmp_path)
+    spec = G.load_gripper(str(path))
+    assert spec.name == "my_hand" and spec.file == str(path) and spec.min_width == 0.0
+    assert spec.pad_size == pytest.approx((0.005, 0.02, 0.02))  # the pad's extents
+    assert spec.finger_size == pytest.approx((0.015, 0.02, 0.09))  # link and pad together
+    (palm,) = spec.palm_boxes  # the palm pieces' bounding box, moved from the base frame to the TCP frame
+    assert palm.size == pytest.approx((0.12, 0.04, 0.02)) and palm.pos == pytest.approx((0.0, 0.0, -0.09))
+    assert G.load_gripper(path) is spec  # cached while unchanged; a Path works too
+    assert G.gripper_files(str(path)) == (str(path), str(tmp_path / "link.obj"), str(tmp_path / "pad.obj"))
+    model, data = _compile(G.build_gripper(spec))
+    roles = G.gripper_geom_ids(model)
+    assert len(roles["pad"]) == 2 and len(roles["finger"]) == 2 and len(roles["palm"]) == 1
+    for width in (0.06, 0.0):
+        G.set_gripper_width(model, data, width, instant=True)
+        assert _pad_faces(model, data) == pytest.approx((-width / 2, width / 2, -0.01, 0.01), abs=1e-9)
+    for suffix in (".yaml", ".json"):
+        again = G.read_gripper(G.write_gripper(spec, tmp_path / f"copy{suffix}"))
+        assert again == spec and again.file == str(tmp_path / f"copy{suffix}")
+    panda = G.load_gripper("panda")
+    assert G.read_gripper(G.write_gripper(panda, tmp_path / "panda.yaml")) == panda
+    # The grasps stage takes a path; its gripper column then holds the path.
+    from graspgen.sim.scene_grasps import GraspsParams
+
+    assert GraspsParams(gripper=str(path)).gripper == str(path)
+
+
+@pytest.mark.parametrize(
+    ("write", "message"),
+    [
+        (None, "no such gripper file; bundled grippers: box_jaw, panda, robotiq_2f85"),
+        ("name: [unclosed\n", "not valid YAML"),
+        ("- 1\n- 2\n", "must be a mapping of gripper settings"),
+        ({"max_widht": 0.1}, "max_widht: unknown key; valid keys: body_mass, closing_speed,"),
+        ({"force_limit": None}, "force_limit: missing (a gripper file needs force_limit)"),
+        ({"force_limit": -1}, "force_limit: must be in (0, inf), got -1"),
+        ({"pad_size": [0.01]}, "pad_size: must be 3 finite numbers"),
+        ({"finger_geoms": [{"mesh": "nope.obj"}]}, "finger_geoms[0]: mesh: mesh file"),
+        ({"finger_geoms": [{"mesh": "l.obj"}]}, "is not convex (its hull is"),
+        ({"pad_geom": {"size": [0.01, 0.02, 0.02], "pos": [0.03, 0.0, 0.1]}}, "pad_geom: must have its contact face"),
+        ({"frame": "world"}, "frame: must be one of tcp, base"),
+        ({"palm_geoms": [{"size": [0.1, 0.1, 0.1], "colour": "red"}]}, "palm_geoms[0]: unknown key 'colour'"),
+    ],
+)
+def test_bad_gripper_files_give_one_line_naming_the_file(tmp_path, write, message):
+    path = _user_file(tmp_path)
+    if isinstance(write, dict):
+        data = json.loads(path.read_text())
+        data.update(write)
+        data = {k: v for k, v in data.items() if v is not None}
+        path.write_text(json.dumps(data))
+    elif isinstance(write, str):
+        path.write_text(write)
+    else:
+        path = tmp_path / "missing.yaml"
+    _l_shape().export(tmp_path / "l.obj")
+    with pytest.raises(SettingsError) as err:
+        G.load_gripper(str(path))
+    text = str(err.value)
+    assert text.startswith(f"gripper: {path}: ") and message in text and "\n" not in text, text
+    with pytest.raises(ValueError, match="gripper: "):  # the config's grasps.gripper
+        from graspgen.sim.scene_grasps import GraspsParams
+
+        GraspsParams(gripper=str(path))
+
+
+def _l_shape() -> trimesh.Trimesh:
+    """A watertight L-shaped prism (not convex: its hull is ~60 % larger)."""
+    outline = np.array([[0, 0], [0.04, 0], [0.04, 0.01], [0.01, 0.01], [0.01, 0.04], [0, 0.04]], dtype=float)
+    n = len(outline)
+    vertices = np.vstack([np.c_[outline[:, 0] + 0.035, np.full(n, -0.01), outline[:, 1] + 0.02],
+                          np.c_[outline[:, 0] + 0.035, np.full(n, 0.01), outline[:, 1] + 0.02]])
+    faces = [[0, k + 1, k] for k in range(1, n - 1)] + [[n, n + k, n + k + 1] for k in range(1, n - 1)]
+    for k in range(n):
+        j = (k + 1) % n
+        faces += [[k, j, n + j], [k, n + j, n + k]]
+    mesh = trimesh.Trimesh(vertices, faces, process=True)
+    mesh.fix_normals()
+    return mesh
+
+
+def test_not_a_gripper_file_or_name():
+    with pytest.raises(SettingsError, match=r"^gripper: hand\.txt: not a gripper file \(expected \.yaml"):
+        G.load_gripper(Path("hand.txt"))
+    with pytest.raises(SettingsError, match="unknown 'pandas'; choose one of: box_jaw, panda, robotiq_2f85"):
+        G.load_gripper("pandas")
+
+
+# ------------------------------------------------------------------------------------------------- picture
+
+
+def test_gripper_picture_and_show_command(tmp_path):
+    from typer.testing import CliRunner
+
+    from graspgen_cli.app import app
+
+    spec = G.load_gripper(str(_user_file(tmp_path)))
+    image = G.gripper_picture(spec, size=200, render=False)
+    assert image.size == (400, 58 + 2 * (200 + 20))
+    out = tmp_path / "g.png"
+    result = CliRunner().invoke(app, ["show", "gripper", str(tmp_path / "my_hand.yaml"), "-o", str(out), "--wireframe"])
+    assert result.exit_code == 0, result.output
+    assert out.is_file() and str(out) in result.output
+    bad = CliRunner().invoke(app, ["show", "gripper", "pandas"])
+    assert bad.exit_code == 2 and "choose one of: box_jaw, panda, robotiq_2f85" in " ".join(bad.output.split())

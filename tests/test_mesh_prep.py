@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from graspgen.errors import InputError
-from graspgen.geometry.convex import CoacdParams, convex_decomposition
+from graspgen.geometry.convex import CoacdParams, _convex_part, _read_parts, _write_parts, convex_decomposition
 from graspgen.geometry.mass import _physical_inertia, mass_properties
 from graspgen.geometry.mesh_io import load_mesh
 from graspgen.geometry.prepare import prepare_object
@@ -358,6 +358,55 @@ def test_convex_decomposition_of_l_shape(capfd):
 
 def _fail(*args, **kwargs):
     raise AssertionError("coacd.run_coacd must not be called")
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in divide:RuntimeWarning")  # trimesh: 0-volume mass
+def test_degenerate_coacd_parts_have_no_volume_or_no_hull():
+    flat = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [0.5, 0.5, 0]], dtype=np.float64) * 0.01
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    for points in (flat, flat * [1, 0, 0]):  # a flat part, a collinear part: no volume, dropped as slivers
+        part = _convex_part(points, faces)
+        assert part is None or not part.volume > 0
+    for bad in (np.inf, np.nan):  # QhullError, ValueError: no hull at all
+        points = flat.copy()
+        points[0, 2] = bad
+        assert _convex_part(points, faces) is None
+
+
+def _damage(path, how):
+    data = path.read_bytes()
+    if how == "empty":
+        path.write_bytes(b"")
+    elif how == "truncated":
+        path.write_bytes(data[: len(data) // 2])
+    elif how == "bit flip":
+        i = data.index(b"\x93NUMPY", len(data) // 2) + 64  # inside the last array's data: a CRC mismatch
+        path.write_bytes(data[:i] + bytes([data[i] ^ 0xFF]) + data[i + 1 :])
+    elif how == "text":
+        path.write_bytes(b"not an npz")
+    elif how == "plain npy":
+        with open(path, "wb") as f:
+            np.save(f, np.arange(3))
+    elif how == "part missing":
+        with open(path, "wb") as f:
+            np.savez(f, count=np.array(2), vertices_0=np.zeros((4, 3)), faces_0=np.zeros((4, 3)))
+    elif how == "folder":
+        path.unlink()
+        path.mkdir()
+
+
+@pytest.mark.parametrize("how", ["empty", "truncated", "bit flip", "text", "plain npy", "part missing", "folder"])
+def test_damaged_cache_entry_is_reported_and_recomputed(tmp_path, caplog, how):
+    path = tmp_path / "coacd-x.npz"
+    _write_parts(path, [(np.zeros((4, 3)), np.zeros((4, 3), dtype=np.int32))])
+    assert len(_read_parts(path)) == 1
+    _damage(path, how)
+    if how == "folder":
+        assert _read_parts(path) is None  # not a file: simply a miss
+        return
+    with caplog.at_level("WARNING", logger="graspgen.geometry.convex"):
+        assert _read_parts(path) is None
+    assert "unreadable CoACD cache entry, recomputing" in caplog.text
 
 
 # ---------------------------------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -16,7 +17,7 @@ from pipeline.config import load_config
 from pipeline.errors import ConfigError
 from pipeline.scheduler import committed, run_pipeline
 from pipeline.store import stage_dir
-from stages.objects import ObjectsParams, catalog, discover
+from stages.objects import ObjectsParams, ObjectsStage, catalog, discover, left_out_by_include, object_warnings
 from stages.project import PROJECT
 
 CHEAP = [
@@ -166,3 +167,74 @@ def test_bundled_box_shard_matches_its_geometry(tmp_path):
     hull_volume = sum(trimesh.Trimesh(v, f).volume for v, f in bracket.convex_parts)
     assert hull_volume == pytest.approx(bracket.attrs["volume"], rel=0.15)
     assert bracket.attrs["source_sha256"] and bracket.attrs["params"]["coacd"]["threshold"] == 0.2
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Warnings: unit guesses, repairs, meshes left out by objects.include, objects the gripper cannot grasp.
+
+
+def test_object_warnings_name_the_file_and_skip_merges():
+    path = Path("somewhere/mug.obj")
+    assert object_warnings(path, ["mug.obj: largest extent 95.0 units, assumed millimetres"], []) == [
+        "mug.obj: largest extent 95.0 units, assumed millimetres"
+    ]
+    notes = ["merged 12 duplicate vertices", "removed 2 zero-area faces", "fixed face winding / orientation",
+             "mesh is not watertight after repair"]
+    assert object_warnings(path, [], notes) == [
+        "mug.obj: mesh repaired: removed 2 zero-area faces; fixed face winding / orientation"
+    ]
+    assert object_warnings(path, [], ["merged 12 duplicate vertices"]) == []  # an STL's shared corners: no repair
+
+
+def test_include_leaving_out_meshes_of_paths_is_a_warning(tmp_path):
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    for name in ("keep", "drop1", "drop2"):
+        write_obj(tmp_path / f"{name}.obj", box.vertices, box.faces)
+    params = ObjectsParams(bundled=True, paths=(str(tmp_path / "*.obj"),), include=("keep", "box"))
+    assert left_out_by_include(params) == [tmp_path / "drop1.obj", tmp_path / "drop2.obj"]
+    (warning,) = ObjectsStage().plan_warnings(params, None)
+    assert warning.startswith("objects.include leaves out 2 mesh(es) that objects.paths matches: ")
+    assert f"{tmp_path / 'drop1.obj'}, {tmp_path / 'drop2.obj'}" in warning
+    assert left_out_by_include(ObjectsParams(include=("box",))) == []  # bundled ones left out: what include is for
+    assert left_out_by_include(ObjectsParams(bundled=False, paths=params.paths)) == []
+
+
+def test_run_prints_the_warnings_and_the_card_lists_them(tmp_path):
+    d = tmp_path / "meshes"
+    d.mkdir()
+    mm = trimesh.creation.cylinder(radius=20.0, height=90.0, sections=24)  # millimetres
+    write_obj(d / "mm_cylinder.obj", mm.vertices, mm.faces)
+    box = trimesh.creation.box((0.04, 0.05, 0.06))
+    write_obj(d / "inside_out_box.obj", box.vertices, box.faces[:, ::-1])  # every face wound the wrong way
+    big = trimesh.creation.box((0.2, 0.2, 0.2))  # wider than the 2F-85 opens, every way
+    write_obj(d / "big_box.obj", big.vertices, big.faces)
+    write_obj(d / "extra.obj", box.vertices, box.faces)
+    cfg = tmp_path / "w.yaml"
+    cfg.write_text(
+        "objects:\n  bundled: false\n  paths: ['meshes/*.obj']\n  include: [big_box, inside_out_box, mm_cylinder]\n"
+        "  stable_poses: {max_poses: 2, settle_time: 0.5}\n"
+        "scenes:\n  num_scenes: 1\n  choice: fixed\n  objects: [big_box, mm_cylinder, inside_out_box]\n"
+        "  cameras: {num_views: 1, width: 160, height: 120}\n"
+        "grasps:\n  max_per_object: 8\n  sampler: {num_surface_points: 64}\n"
+        "robustness:\n  num_perturbations: 3\n"
+    )
+    args = ["run", "--config", cfg, "--out", tmp_path / "out", "--jobs", 2,
+            "--set", f"run.cache_dir={tmp_path / 'cache'}", *[a for s in CHEAP for a in ("--set", s)]]
+    result = gen(*args, cwd=tmp_path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    expected = [
+        "objects: objects.include leaves out 1 mesh(es) that objects.paths matches: meshes/extra.obj (add their "
+        "names to objects.include to use them)",
+        "objects: inside_out_box: inside_out_box.obj: mesh repaired: fixed face winding / orientation",
+        "objects: mm_cylinder: mm_cylinder.obj: largest extent 90.0 units, assumed millimetres, scaled by 0.001",
+        "grasps: scene_000000: gripper robotiq_2f85 cannot grasp object 'big_box': it is 200 mm across at its "
+        "narrowest, the gripper closes on at most 75 mm (85 mm stroke less grasps.sampler.min_clearance)",
+    ]
+    lines = result.stderr.splitlines()
+    start = lines.index("4 warning(s):")
+    assert [line.strip() for line in lines[start + 1:start + 5]] == expected  # one a line: not wrapped
+    card = json.loads((tmp_path / "out" / "dataset" / "card.json").read_text())
+    assert card["warnings"] == expected
+    assert "## Warnings" in (tmp_path / "out" / "dataset" / "card.md").read_text()
+    again = gen(*args, cwd=tmp_path)  # nothing runs, the warnings are still told
+    assert again.returncode == 0 and "Nothing to do" in again.stderr and "4 warning(s):" in again.stderr

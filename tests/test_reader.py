@@ -154,7 +154,7 @@ def test_works_with_pyarrow_alone(out):
     result = _python(code)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.split("\n")
-    assert lines[0] == "no torch: No module named 'torch'"
+    assert lines[0].startswith("no torch: ") and "pip install 'graspgen[torch]'" in lines[0]
     n, m, points, *flags = lines[1].split()
     assert int(n) == int(m) > 0 and int(points) > 0
     assert flags == ["False", "False", "False"]  # no pandas, no torch, no MuJoCo needed
@@ -198,6 +198,22 @@ def test_torch_adapter(out, fake_torch):
     np.testing.assert_allclose(np.asarray(item["points"]), view.cloud("camera")[0], atol=1e-6)
     again = pickle.loads(pickle.dumps(tds))  # what a DataLoader worker gets
     np.testing.assert_array_equal(np.asarray(again[0]["poses"]), np.asarray(item["poses"]))
+
+
+def test_torch_adapter_without_torch_says_how_to_install_it(out, monkeypatch):
+    import graspgen.io.reader as reader
+    from graspgen.errors import GraspGenError
+
+    monkeypatch.setitem(sys.modules, "torch", None)  # absent, whether or not it is installed: import raises
+    monkeypatch.delitem(reader.__dict__, "TorchDataset", raising=False)
+    ds = open_dataset(out)
+    for make in (ds.torch_dataset, lambda: reader.TorchDataset):
+        with pytest.raises(ImportError) as info:
+            make()
+        assert all(isinstance(info.value, t) for t in (reader.TorchMissingError, GraspGenError, ModuleNotFoundError))
+        assert info.value.name == "torch" and info.value.__cause__ is None
+        assert "needs torch, which is not installed: pip install 'graspgen[torch]'" in str(info.value)
+    assert "TorchDataset" not in reader.__dict__
 
 
 def test_readme_reader_example_runs(out):

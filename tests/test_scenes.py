@@ -431,3 +431,11 @@ def test_colorize_depth_is_near_bright_far_dark():
     assert img[0, 0].tolist() == [0, 0, 0]  # no return is black
     assert img[0, 1].sum() > img[0, 2].sum()  # near is brighter
     assert img[0, 3].tolist() == img[0, 2].tolist()  # beyond the focus range: clipped to the far colour
+
+
+def test_a_scene_made_in_process_from_a_loaded_config_stores_its_params(upstream, tmp_path):
+    # A loaded config holds read-only mappings (MappingProxyType), which dataclasses.asdict cannot copy: a scene
+    # task run in the main process (--jobs 1, or one task left) failed with "cannot pickle 'mappingproxy'".
+    params = load_config(PROJECT.schema, None, ["scenes.weights={box: 2.0}", "scenes.cameras.render=false"]).scenes
+    record, _ = scene(params, upstream, 4, tmp_path)
+    assert record.attrs["params"]["weights"] == {"box": 2.0}

@@ -5,13 +5,13 @@ from __future__ import annotations
 import json
 
 import pytest
-from toy_stages import TOY, read_json, write_json
+from toy_stages import TOY, NumbersStage, SumsStage, read_json, write_json
 
 from pipeline.config import load_config
 from pipeline.errors import LockError, StageError
 from pipeline.keys import sha256_file
 from pipeline.repro import shard_hashes
-from pipeline.scheduler import DiskFullError, run_pipeline, status
+from pipeline.scheduler import DiskFullError, Project, run_pipeline, status
 from pipeline.stage import Task, topological_order
 from pipeline.store import Manifest, RunLock, stage_dir
 
@@ -281,3 +281,137 @@ def test_a_full_disk_stops_the_run_and_a_resume_after_freeing_space_gives_the_sa
     reference = tmp_path / "ref"
     run_pipeline(TOY, config(reference, "run.jobs=1", f"numbers.disk_full_while={full}"))
     assert shard_hashes(tmp_path / "o") == shard_hashes(reference)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Status checks shards as the run does; warnings; the published output's check and repair.
+
+
+class WarningNumbers(NumbersStage):
+    """Numbers whose planning leaves out ids starting with ``x`` (and says so), and whose tasks warn: every task
+    the same text, ids with a ``w`` one of their own."""
+
+    def tasks(self, params, upstream):
+        return [t for t in super().tasks(params, upstream) if not t.id.startswith("x")]
+
+    def plan_warnings(self, params, upstream):
+        dropped = [i for i in params.ids if i.startswith("x")]
+        return [f"left out {', '.join(dropped)} [ids starting with x]"] if dropped else []
+
+    def run(self, task, params, upstream, rng, out, ctx):
+        meta = super().run(task, params, upstream, rng, out, ctx)
+        return {**meta, "warnings": ["draws look odd"] + ([f"{task.id} is special"] if "w" in task.id else [])}
+
+
+class CheckedSums(SumsStage):
+    """Sums whose published total.txt is checked: publish_status names it when it is missing or not what publish
+    writes (or when its shard is being remade), publish rewrites it and says so; the warnings it sees are kept."""
+
+    seen_warnings: dict = {}
+
+    @staticmethod
+    def text(shards):
+        total = float(read_json(shards.path("sums", "total"))["total"])
+        return f"{total!r} from {len(shards.ids('numbers'))} shards\n"
+
+    def publish_status(self, params, shards, dest):
+        path = dest / "published" / "total.txt"
+        if not path.exists():
+            return ["total.txt missing (will be replaced)"]
+        if "total" not in shards.ids("sums") or path.read_text() != self.text(shards):
+            return ["total.txt damaged (will be replaced)"]
+        return []
+
+    def publish(self, params, shards, dest):
+        CheckedSums.seen_warnings = {s: shards.warnings(s) for s in ("numbers", "sums")}
+        path = dest / "published" / "total.txt"
+        before = path.read_text() if path.exists() else None
+        super().publish(params, shards, dest)
+        if before is not None and before != path.read_text():
+            return ["replaced total.txt (damaged)"]
+        return None
+
+
+WARN_TOY = Project(name="toy", schema=TOY.schema, stages=(CheckedSums(), WarningNumbers()))
+
+
+def flip_byte(path):
+    """Change one byte in the middle of ``path`` in place (same size, same inode: through every hard link)."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    with open(path, "r+b") as f:
+        f.write(data)
+
+
+def test_status_checks_shards_as_the_run_does_and_plans_below_a_damaged_one(tmp_path):
+    out = tmp_path / "o"
+    cfg = config(out, "run.jobs=1")
+    run_pipeline(TOY, cfg)
+    assert [s.state for s in status(TOY, cfg)] == ["done", "done"]
+    (entry,) = [e for e in Manifest(stage_dir(out, "numbers")).entries().values() if e.task == "b"]
+    flip_byte(stage_dir(out, "numbers") / entry.file)
+    st = {s.stage: s for s in status(TOY, cfg)}
+    assert (st["numbers"].state, st["numbers"].done, st["numbers"].missing) == ("missing", 3, 1)
+    assert st["numbers"].reasons == ["1 task(s): its shard is missing or damaged (b)"]
+    # the run remakes b with the same key, so sums keeps its key: done, not waiting
+    assert (st["sums"].state, st["sums"].done) == ("done", 1)
+    reports = by_stage(run_pipeline(TOY, cfg))
+    assert (reports["numbers"].ran, reports["numbers"].skipped) == (1, 3)
+    assert (reports["sums"].ran, reports["sums"].skipped) == (0, 1)
+    assert sha256_file(stage_dir(out, "numbers") / entry.file) == entry.sha256
+    assert [s.state for s in status(TOY, cfg)] == ["done", "done"]
+
+
+def test_warnings_of_planning_and_tasks_reach_the_report_and_publish(tmp_path):
+    cfg = config(tmp_path / "o", "run.jobs=2", "numbers.ids=[a, w1, b, c, x9]")
+    expected = [
+        "left out x9 [ids starting with x]",  # planning first
+        "draws look odd (4 tasks: a, b, c and 1 more)",  # one text of several tasks: once
+        "w1: w1 is special",
+    ]
+    for _ in range(2):  # run, then skipped: the warnings come from the manifest
+        reports = by_stage(run_pipeline(WARN_TOY, cfg))
+        assert reports["numbers"].warnings == expected
+        assert reports["sums"].warnings == []
+        assert CheckedSums.seen_warnings == {"numbers": expected, "sums": []}
+    assert reports["numbers"].ran == 0
+
+
+def test_failed_tasks_are_left_out_in_the_warnings_publish_sees(tmp_path):
+    cfg = config(tmp_path / "o", "run.jobs=1", "numbers.ids=[a, bad1]")
+    reports = by_stage(run_pipeline(WARN_TOY, cfg))
+    assert reports["numbers"].warnings == ["a: draws look odd"]  # the failure is in the report's failures
+    assert CheckedSums.seen_warnings["numbers"] == [
+        "a: draws look odd",
+        "bad1: left out: InputError: bad1: this input is broken on purpose",
+    ]
+
+
+def test_status_asks_the_stage_about_its_published_output_and_the_run_repairs_it(tmp_path):
+    out = tmp_path / "o"
+    cfg = config(out, "run.jobs=1")
+    run_pipeline(WARN_TOY, cfg)
+    assert [s.state for s in status(WARN_TOY, cfg)] == ["done", "done"]
+    published = out / "published" / "total.txt"
+    published.write_text("garbage\n")
+    st = {s.stage: s for s in status(WARN_TOY, cfg)}
+    assert st["sums"].state == "damaged" and st["sums"].reasons == ["published: total.txt damaged (will be replaced)"]
+    reports = by_stage(run_pipeline(WARN_TOY, cfg))
+    assert all(r.ran == 0 for r in reports.values())
+    assert reports["sums"].repaired == ["replaced total.txt (damaged)"]
+    assert [s.state for s in status(WARN_TOY, cfg)] == ["done", "done"]
+    # the sums shard damaged: its stage remakes it, and publish_status sees it gone from the view
+    (entry,) = Manifest(stage_dir(out, "sums")).entries().values()
+    flip_byte(stage_dir(out, "sums") / entry.file)
+    st = {s.stage: s for s in status(WARN_TOY, cfg)}
+    assert st["sums"].state == "missing"
+    assert st["sums"].reasons == [
+        "1 task(s): its shard is missing or damaged (total)",
+        "published: total.txt damaged (will be replaced)",
+    ]
+    assert by_stage(run_pipeline(WARN_TOY, cfg))["sums"].ran == 1
+    assert [s.state for s in status(WARN_TOY, cfg)] == ["done", "done"]
+    # a stage with new work is not asked (its publish will lay out new output anyway)
+    published.unlink()
+    st = {s.stage: s for s in status(WARN_TOY, config(out, "run.jobs=1", "sums.scale=5"))}
+    assert st["sums"].state == "stale" and not any(r.startswith("published:") for r in st["sums"].reasons)

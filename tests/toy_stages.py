@@ -88,6 +88,7 @@ class SumsStage(Stage):
     inputs = ("numbers",)
     version = 1
     ext = "json"
+    published = ("published",)
 
     def tasks(self, params: SumsParams, upstream: Upstream) -> list[Task]:
         return [Task(id="total")]

@@ -14,12 +14,14 @@ import json
 import logging
 import os
 import tempfile
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import coacd
 import numpy as np
 import trimesh
+from scipy.spatial import QhullError
 
 from graspgen.geometry.mesh_io import _check_mesh, _label
 from graspgen.validation import check, check_instance, check_number, check_positive_int
@@ -177,11 +179,18 @@ def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams) -> list:
 
 
 def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh | None:
+    """The convex hull of one CoACD part, or None when qhull cannot make one.
+
+    A flat or collinear part does not raise (trimesh retries qhull with joggle, ``QJ``, and returns a hull of no
+    volume, which the caller drops with the other slivers); qhull still raises ``QhullError`` on points it cannot
+    handle (an infinite coordinate) and scipy a ``ValueError`` on NaN. Anything else is a bug and propagates.
+    """
     if len(vertices) < 4:
         return None
     try:
         return trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces), process=False).convex_hull
-    except Exception:  # qhull rejects flat point sets; such a part has no volume anyway
+    except (QhullError, ValueError) as exc:
+        _log.debug("dropping a CoACD part with no convex hull (%s: %s)", type(exc).__name__, exc)
         return None
 
 
@@ -242,14 +251,21 @@ def _read_parts(path: Path) -> list[tuple[np.ndarray, np.ndarray]] | None:
     if not path.is_file():
         return None
     try:
-        with np.load(path, allow_pickle=False) as data:
+        # Our own handle: np.load leaks the one it opens when the zip is damaged (a ResourceWarning).
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as data:
             count = int(data["count"])
             return [
                 (data[f"vertices_{i}"].astype(np.float64), data[f"faces_{i}"].astype(np.int32)) for i in range(count)
             ]
-    except Exception as exc:
-        _log.warning("%s: unreadable CoACD cache entry, recomputing (%s)", path, exc)
+    except _UNREADABLE_CACHE as exc:
+        _log.warning("%s: unreadable CoACD cache entry, recomputing (%s: %s)", path, type(exc).__name__, exc)
         return None
+
+
+_UNREADABLE_CACHE = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
+"""What ``np.load`` and the reads above raise on a damaged entry: OSError (unreadable), EOFError (empty),
+BadZipFile (truncated, or a failed CRC), ValueError (not an npz: it looks like pickled data), KeyError (a part
+missing), TypeError (a plain .npy, or a ``count`` that is not a scalar)."""
 
 
 def _write_parts(path: Path, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:

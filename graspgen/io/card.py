@@ -57,7 +57,7 @@ DISCRETE_LABEL_VALUES = 32
 """A label with at most this many distinct values is counted per value (robustness and pfc of up to 31 copies, a
 friction grid), not binned."""
 
-CARD_VERSION = 2
+CARD_VERSION = 3
 """Bump when the card's content or the plots change: published folders are then re-rendered."""
 
 MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots")
@@ -257,6 +257,7 @@ def build_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, An
         "tables": list(provenance["tables"]),
         **stats,
         "left_out": dict(provenance["left_out"]),
+        "warnings": [str(w) for w in provenance.get("warnings", [])],
         "schema": _schema_doc(schema),
         "plots": plots,
         "files": {k: files[k] for k in sorted(files)},
@@ -385,6 +386,16 @@ def render_card(card: Mapping[str, Any]) -> str:
         for rel in card["plots"]:
             lines.append(f"![{Path(rel).stem}]({rel})")
             lines.append("")
+    if card.get("warnings"):
+        lines += [
+            "## Warnings",
+            "",
+            "What the run that made this dataset warned about: unit guesses and repairs of meshes, objects left out "
+            "and why, objects the gripper cannot grasp (stage: text).",
+            "",
+        ]
+        lines += [f"- {_md_text(w)}" for w in card["warnings"]]
+        lines.append("")
     if card["left_out"]:
         lines += ["## Scenes left out", ""]
         lines += [f"- {sid}: {why}" for sid, why in card["left_out"].items()]
@@ -414,6 +425,12 @@ def render_card(card: Mapping[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _md_text(text: str) -> str:
+    """``text`` as literal Markdown inline text: the characters that would start markup (emphasis by ``*``, code,
+    links, HTML) are escaped; underscores inside words (``scene_000002``) are literal in Markdown already."""
+    return "".join("\\" + ch if ch in "\\`*[]<>" else ch for ch in str(text))
 
 
 def package_versions() -> dict[str, str]:
@@ -454,15 +471,38 @@ def report(path: str | Path) -> Path:
     The statistics and plots come from the data files; what the data cannot tell (keys, config, package versions,
     the data files' hashes) is taken from the existing ``card.json``. So on an intact folder the result is the
     published card, byte for byte.
+
+    Raises
+    ------
+    InputError
+        No dataset there; card.json unreadable or incomplete; a data file it lists missing, of another size
+        (truncated) or unreadable. The message names the file.
     """
     root = dataset_dir(path)
+    card_path = root / "card.json"
     try:
-        old = json.loads((root / "card.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputError(f"{root / 'card.json'}: cannot read the card ({exc}); publish again with gen run") from None
+        old = json.loads(card_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{card_path}: cannot read the card ({exc}); publish again with gen run") from None
+    needed = ("dataset_key", "tables", "left_out", "stages", "versions", "config", "files")
+    missing = [k for k in needed if k not in old] if isinstance(old, dict) else list(needed)
+    if missing or not isinstance(old["files"], dict) or not isinstance(old["config"], dict):
+        raise InputError(f"{card_path}: not a complete dataset card (no {', '.join(missing) or 'files/config'}); "
+                         "publish again with gen run")
     fields = {f.name for f in dataclasses.fields(CardSettings)}
-    settings = CardSettings(**{k: v for k, v in old.get("config", {}).get("dataset", {}).items() if k in fields})
-    data_files = {k: v for k, v in old.get("files", {}).items() if not k.startswith("plots/")}
+    settings = CardSettings(**{k: v for k, v in (old["config"].get("dataset") or {}).items() if k in fields})
+    data_files = {k: v for k, v in old["files"].items() if not k.startswith("plots/")}
+    for rel, info in data_files.items():  # a truncated or missing data file: name it, before reading any
+        f = root / rel
+        size = f.stat().st_size if f.is_file() else None
+        listed = info.get("bytes") if isinstance(info, dict) else None
+        if size is None or size != listed:
+            state = "missing" if size is None else f"{size} bytes, card.json says {listed} (truncated?)"
+            raise InputError(f"{f}: {state}; gen validate {path} lists every damaged file")
     provenance = {k: old[k] for k in ("dataset_key", "tables", "left_out", "stages", "versions", "config")}
-    build_card(root, provenance, data_files, settings)
+    provenance["warnings"] = old.get("warnings", [])
+    try:
+        build_card(root, provenance, data_files, settings)
+    except pa.ArrowException as exc:  # same size but damaged
+        raise InputError(f"{root / 'grasps.parquet'}: cannot be read ({exc}); gen validate {path} says more") from None
     return root / "card.md"

@@ -36,6 +36,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from graspgen.errors import GraspGenError
+
 __all__ = ["GraspDataset", "Grasp", "Scene", "View", "Sample", "open_dataset"]  # + TorchDataset, made when used
 
 SEG_GROUND = -3
@@ -352,8 +354,29 @@ class GraspDataset:
                     yield Sample(scene.scene_id, scene.view(int(k)), part)
 
     def torch_dataset(self, **kwargs: Any) -> Any:
-        """A PyTorch map-style Dataset of (scene, view) samples: :class:`TorchDataset` (imports torch)."""
+        """A PyTorch map-style Dataset of (scene, view) samples: :class:`TorchDataset` (imports torch; raises
+        :class:`TorchMissingError`, an ``ImportError``, naming ``pip install 'graspgen[torch]'`` without it)."""
         return __getattr__("TorchDataset")(self.root, **kwargs)
+
+
+class TorchMissingError(GraspGenError, ModuleNotFoundError):
+    """The PyTorch adapter was used where torch is not installed (also a ``ModuleNotFoundError``)."""
+
+
+def _import_torch() -> Any:
+    """``torch``, or one clear error saying how to install it (a torch that is installed but broken raises its
+    own error)."""
+    try:
+        import torch
+    except ModuleNotFoundError as exc:
+        if exc.name != "torch":
+            raise
+        raise TorchMissingError(
+            "the PyTorch adapter (torch_dataset, TorchDataset) needs torch, which is not installed: "
+            "pip install 'graspgen[torch]' (in a checkout: pip install -e '.[torch]')",
+            name="torch",
+        ) from None
+    return torch
 
 
 class _TorchSamples:
@@ -386,8 +409,7 @@ class _TorchSamples:
         views: int | Sequence[int] | None = None,
         **where: Any,
     ):
-        import torch  # noqa: F401 - fail here, with torch's own message, when it is not installed
-
+        _import_torch()  # fail here, with one clear message, when torch is not installed
         if frame not in ("world", "camera"):
             raise ValueError(f"frame: must be 'world' or 'camera', got {frame!r}")
         self.root = open_dataset(root).root
@@ -444,6 +466,7 @@ def __getattr__(name: str) -> Any:
     if name == "TorchDataset":
         if "TorchDataset" in globals():
             return globals()["TorchDataset"]
+        _import_torch()
         from torch.utils.data import Dataset
 
         cls = type("TorchDataset", (_TorchSamples, Dataset), {"__module__": __name__, "__doc__": _TorchSamples.__doc__})

@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-import os
 from pathlib import Path
 from typing import Any, Literal
 
-os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
+import graspgen.sim.gl  # noqa: F401 - imported first: chooses MUJOCO_GL before anything imports mujoco
 from graspgen.io.files import read_h5  # noqa: E402
 from graspgen.sim.scene_model import (
     SEG_GROUND,

@@ -11,10 +11,18 @@ The hand base (the robot flange for the 2F-85, the hand frame for the Panda) sit
 
 Modelling, the same for every gripper:
 
-* **Two prismatic jaws.** Every gripper is a parallel-jaw gripper whose two jaws slide along +-x. The real Robotiq
-  2F-85 closes its fingers with a 4-bar linkage; its pads stay parallel but also travel along z (about 1 cm over the
-  stroke) and the linkage sweeps outwards when open. We neglect both: pads move along x only and the links are
-  approximated by one box per finger. Geometry is boxes only (no meshes can be downloaded here).
+* **A gripper is a file.** Each bundled gripper is a YAML file in ``assets/grippers`` (``robotiq_2f85.yaml``,
+  ``box_jaw.yaml``, ``panda/panda.yaml``), and :func:`load_gripper` takes a registered name or the path of such a
+  file written for another hand (the format: :func:`read_gripper`; ``assets/grippers/README.md``).
+* **Geometry: boxes or convex meshes.** A gripper is either boxes given by sizes (``pad_size``, ``finger_size``,
+  ``palm_boxes``: the 2F-85 and the box jaw) or collision pieces per body (``palm_geoms``, ``finger_geoms``,
+  ``pad_geom``: :class:`Box` or convex :class:`Mesh`, in the TCP frame with the jaws open; the Panda, from
+  ACRONYM's collision mesh). MuJoCo collides convex hulls, so a non-convex part is given as several convex pieces
+  (``assets/make_grippers.py`` makes the Panda's). The pads stay separate geoms either way.
+* **Two prismatic jaws.** Every gripper is a parallel-jaw gripper whose two jaws slide along +-x; the left jaw is
+  the right one turned 180 degrees about z. The real Robotiq 2F-85 closes its fingers with a 4-bar linkage; its
+  pads stay parallel but also travel along z (about 1 cm over the stroke) and the linkage sweeps outwards when
+  open. We neglect both: pads move along x only and the links are approximated by one box per finger.
 * **Jaw joint coordinate = half the width.** Each jaw's slide joint ``q`` is the distance of its pad's contact face
   from the TCP plane x = 0, so pad separation (width) = ``q_left + q_right``; range ``[min_width, max_width] / 2``,
   ``qpos0 = max_width / 2`` (a freshly built gripper is open).
@@ -41,7 +49,8 @@ Modelling, the same for every gripper:
 * **Collisions.** Gripper geoms have ``contype=2, conaffinity=1`` (:data:`GRIPPER_CONTYPE`,
   :data:`GRIPPER_CONAFFINITY`): they collide with default geoms (objects, ground: contype = conaffinity = 1) but not
   with each other. They live in geom group :data:`GRIPPER_GEOM_GROUP` and are named ``<prefix>left_pad``,
-  ``<prefix>right_pad``, ``<prefix>left_finger``, ``<prefix>right_finger``, ``<prefix>palm_<k>``.
+  ``<prefix>right_pad``, ``<prefix>left_finger``, ``<prefix>right_finger`` (further finger pieces
+  ``<prefix>left_finger_<k>``, k >= 1), ``<prefix>palm_<k>``; each jaw body's frame is its pad's contact face.
 * **Contact parameters: who sets what.** MuJoCo has no per-material-pair friction; it combines two geoms' parameters
   by *priority* (the higher-priority geom's friction, condim, solref, solimp win) and, at equal priority, takes the
   element-wise maximum friction, the maximum condim, and a ``solmix``-weighted average of solref/solimp.
@@ -69,17 +78,32 @@ so every helper here looks elements up by *name* (``name_prefix`` + local name),
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import json
+import os
+import re
+from collections.abc import Mapping
+from dataclasses import MISSING, dataclass, field, fields
+from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
+import yaml
 
 from graspgen.errors import SettingsError
 from graspgen.validation import check, check_choice, check_number, check_transform, check_vector
 
 __all__ = [
     "Box",
+    "Mesh",
     "GripperSpec",
+    "GRIPPERS_DIR",
+    "read_gripper",
+    "write_gripper",
+    "gripper_from_dict",
+    "gripper_files",
+    "is_gripper_path",
+    "BUNDLED_DIGESTS",
     "GRIPPERS",
     "DEFAULT_GRIPPER",
     "GRIPPER_CONTYPE",
@@ -145,10 +169,86 @@ class Box:
         object.__setattr__(self, "size", check_vector("Box.size", self.size, 3, low=0.0, low_open=True))
         object.__setattr__(self, "pos", check_vector("Box.pos", self.pos, 3))
 
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lowest corner, highest corner) (m), each (3,)."""
+        return np.subtract(self.pos, np.divide(self.size, 2)), np.add(self.pos, np.divide(self.size, 2))
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A convex collision piece given by its vertices, in the gripper's TCP frame (MuJoCo collides with the convex
+    hull of a mesh, so only the hull's vertices matter)."""
+
+    vertices: tuple[tuple[float, float, float], ...]
+    """Vertices (m), at least 4 and not all in one plane."""
+    file: str = field(default="", compare=False)
+    """The mesh file it was read from ('' when given by its vertices); for messages and :func:`gripper_files`."""
+
+    def __post_init__(self) -> None:
+        try:
+            v = np.asarray(self.vertices, dtype=float)
+        except (TypeError, ValueError):
+            v = None
+        check("Mesh.vertices", v is not None and v.ndim == 2 and v.shape[1:] == (3,) and len(v) >= 4
+              and bool(np.isfinite(v).all()), "be 4 or more finite (x, y, z) points", _short(self.vertices))
+        spread = np.linalg.svd(v - v.mean(axis=0), compute_uv=False)
+        check("Mesh.vertices", spread[2] > 1e-9 * max(spread[0], 1e-12) and spread[2] > 1e-9,
+              "span a volume (not all in one plane)", _short(self.vertices))
+        object.__setattr__(self, "vertices", tuple(tuple(float(x) for x in row) for row in v))
+
+    @property
+    def array(self) -> np.ndarray:
+        """The vertices as an (n, 3) float64 array (a copy)."""
+        return np.array(self.vertices, dtype=float)
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lowest corner, highest corner) (m) of the axis-aligned bounding box, each (3,)."""
+        v = self.array
+        return v.min(axis=0), v.max(axis=0)
+
+
+Shape = Box | Mesh
+"""A collision geom of a gripper body: a :class:`Box` or a convex :class:`Mesh`."""
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def _bounds_of(shapes) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (3,) of the axis-aligned box around ``shapes``."""
+    los, his = zip(*(s.bounds for s in shapes))
+    return np.min(los, axis=0), np.max(his, axis=0)
+
+
+def _box_around(shapes) -> Box:
+    lo, hi = _bounds_of(shapes)
+    return Box(size=tuple(hi - lo), pos=tuple((lo + hi) / 2.0))
+
+
+def _check_shapes(name: str, value: Any) -> tuple[Shape, ...]:
+    try:
+        shapes = tuple(value)
+    except TypeError:
+        shapes = None
+    check(name, shapes is not None and all(isinstance(s, (Box, Mesh)) for s in shapes),
+          "be a sequence of Box or Mesh", _short(value))
+    return shapes
+
 
 @dataclass(frozen=True)
 class GripperSpec:
-    """A parallel-jaw gripper, as data. All lengths in metres, in the TCP frame (see the module docstring)."""
+    """A parallel-jaw gripper, as data. All lengths in metres, in the TCP frame (see the module docstring).
+
+    Geometry comes in one of two ways (or mixed per body): boxes given by sizes (``pad_size``, ``finger_size``,
+    ``palm_boxes``), or collision pieces per body (``palm_geoms``, ``finger_geoms``, ``pad_geom``), which replace the
+    boxes of their body in the MuJoCo model. The sizes stay meaningful either way: ``pad_size`` is the contact area
+    (the grasp sampler and the contact model use it) and ``finger_size`` / ``palm_boxes`` the bounding boxes
+    (inertia, drawings).
+    """
 
     name: str
     """Registry name, e.g. ``"robotiq_2f85"``."""
@@ -158,16 +258,19 @@ class GripperSpec:
     """Largest pad separation (m) when fully open (the stroke is ``max_width - min_width``)."""
     pad_size: tuple[float, float, float]
     """Full extents (m) of each contact pad box: (thickness along x, width along y, length along z). The pad's
-    contact face is its inner x face; pads are centred at y = 0, z = 0 of the TCP frame."""
+    contact face is its inner x face; pads are centred at y = 0, z = 0 of the TCP frame. With a ``pad_geom``, the
+    contact face's width and length (and the geom's thickness)."""
     pad_friction: tuple[float, float, float]
     """MuJoCo friction of the pads: (sliding [-], torsional [m], rolling [m]). With ``build_gripper(friction="pad")``
     all three govern pad contacts; with the default ``friction="object"`` the sliding coefficient is replaced by the
     object's and the torsional/rolling ones act as a floor (see the module docstring)."""
     finger_size: tuple[float, float, float]
     """Full extents (m) of each finger link box: (thickness along x, width along y, length along z). The box sits
-    directly behind (outside) its pad and its tip is flush with the pad's tip (z = pad length / 2)."""
+    directly behind (outside) its pad and its tip is flush with the pad's tip (z = pad length / 2). With
+    ``finger_geoms``, the extents of the finger's bounding box (pad included)."""
     palm_boxes: tuple[Box, ...]
-    """Collision boxes of the palm / hand body, fixed in the TCP frame (behind the fingers, at negative z)."""
+    """Collision boxes of the palm / hand body, fixed in the TCP frame (behind the fingers, at negative z). With
+    ``palm_geoms`` (which then collide instead), their bounding box; left empty, it is filled in."""
     tcp_offset: float
     """Distance (m) from the hand base (flange / hand frame) to the TCP along z; the base is at z = -tcp_offset."""
     force_limit: float
@@ -182,6 +285,17 @@ class GripperSpec:
     """MuJoCo contact dimensionality of the pads: 3 (sliding), 4 (+ torsional) or 6 (+ rolling)."""
     source: str = ""
     """Where the numbers come from (data sheets, reference models) and what was approximated."""
+    palm_geoms: tuple[Shape, ...] = ()
+    """Collision pieces of the palm / hand body (TCP frame); empty: the ``palm_boxes`` collide."""
+    finger_geoms: tuple[Shape, ...] = ()
+    """Collision pieces of the right finger link (+x) without its pad, in the TCP frame with the jaws open (width
+    ``max_width``); the left finger is the same turned 180 degrees about z. Empty: one box of ``finger_size``."""
+    pad_geom: Shape | None = None
+    """The right pad's collision piece, in the TCP frame with the jaws open: its contact face (its smallest x) lies
+    at ``x = max_width / 2`` (within 0.5 mm; the model puts it there exactly) and it straddles y = 0 and z = 0.
+    None: a box of ``pad_size``."""
+    file: str = field(default="", compare=False)
+    """The gripper file this spec was read from ('' for one made in Python)."""
 
     def __post_init__(self) -> None:
         check("name", isinstance(self.name, str) and bool(self.name.strip()), "be a non-empty string", self.name)
@@ -199,11 +313,32 @@ class GripperSpec:
               f"be at least as long as its pad (length >= pad_size z = {self.pad_size[2]} m)", self.finger_size)
         check("pad_condim", self.pad_condim in (1, 3, 4, 6) and not isinstance(self.pad_condim, bool),
               "be one of 1, 3, 4, 6", self.pad_condim)
+        palm_geoms = _check_shapes("palm_geoms", self.palm_geoms)
+        object.__setattr__(self, "palm_geoms", palm_geoms)
         boxes = tuple(self.palm_boxes)
+        if not boxes and palm_geoms:
+            boxes = (_box_around(palm_geoms),)
         check("palm_boxes", bool(boxes) and all(isinstance(b, Box) for b in boxes), "be a non-empty sequence of Box",
               self.palm_boxes)
         object.__setattr__(self, "palm_boxes", boxes)
+        fingers = _check_shapes("finger_geoms", self.finger_geoms)
+        object.__setattr__(self, "finger_geoms", fingers)
+        if fingers:
+            check("finger_geoms", bool(_bounds_of(fingers)[0][0] >= -1e-9),
+                  "describe the right finger (+x): every piece at x >= 0", f"lowest x {_bounds_of(fingers)[0][0]:.4g}")
+        pad = self.pad_geom
+        check("pad_geom", pad is None or isinstance(pad, (Box, Mesh)), "be a Box, a Mesh or None", _short(pad))
+        if pad is not None:
+            lo, hi = pad.bounds
+            half = self.max_width / 2.0
+            check("pad_geom", abs(lo[0] - half) <= _FACE_TOL,
+                  f"have its contact face (its smallest x) at max_width / 2 = {half:.4g} m (within 0.5 mm; give it "
+                  "with the jaws open)", f"smallest x {lo[0]:.4g}")
+            check("pad_geom", lo[1] <= 0.0 <= hi[1] and lo[2] <= 0.0 <= hi[2],
+                  "straddle the TCP (y = 0 and z = 0 within its extents)",
+                  f"y {lo[1]:.4g}..{hi[1]:.4g}, z {lo[2]:.4g}..{hi[2]:.4g}")
         check("source", isinstance(self.source, str), "be a string", self.source)
+        check("file", isinstance(self.file, str), "be a string", self.file)
 
     @property
     def stroke(self) -> float:
@@ -220,83 +355,267 @@ class GripperSpec:
         """Viscous damping (N s/m) of each jaw joint, so that a saturated actuator closes at ``closing_speed``."""
         return 2.0 * self.force_limit / self.closing_speed
 
+    @property
+    def uses_meshes(self) -> bool:
+        """Whether any body collides with :class:`Mesh` pieces (not only boxes)."""
+        pieces = (*self.palm_geoms, *self.finger_geoms, *(() if self.pad_geom is None else (self.pad_geom,)))
+        return any(isinstance(s, Mesh) for s in pieces)
+
     def to_dict(self) -> dict:
-        """Plain-data view (for logs / metadata files)."""
+        """Plain-data view (for logs / metadata files); also the gripper file format: ``write_gripper`` writes it and
+        :func:`read_gripper` reads it back (meshes as their vertices). ``file`` is left out."""
         out = {}
         for f in fields(self):
+            if f.name == "file":
+                continue
             value = getattr(self, f.name)
-            if f.name == "palm_boxes":
-                value = [{"size": list(b.size), "pos": list(b.pos)} for b in value]
+            if f.name in ("palm_boxes", "palm_geoms", "finger_geoms"):
+                value = [_shape_dict(s) for s in value]
+            elif f.name == "pad_geom":
+                value = None if value is None else _shape_dict(value)
             elif isinstance(value, tuple):
                 value = list(value)
             out[f.name] = value
         return out
 
 
-# Robotiq 2F-85. Public data sheet / instruction manual: stroke 0-85 mm, grip force 20-235 N (adjustable), closing
-# speed 20-150 mm/s, mass 0.925 kg. Geometry from the public MuJoCo Menagerie 2F-85 model (open configuration):
-# pads 22 mm wide x 37.5 mm long x 8 mm thick, pad centre ~0.141 m from the mount flange; base housing up to
-# ~0.066 m above the flange; linkage masses ~0.06 kg per finger.
-_ROBOTIQ_2F85 = GripperSpec(
-    name="robotiq_2f85",
-    min_width=0.0,
-    max_width=0.085,
-    pad_size=(0.008, 0.022, 0.0375),
-    pad_friction=(1.0, 0.005, 0.0001),
-    finger_size=(0.012, 0.022, 0.0935),  # tip at z = +0.01875, root at the palm's lower face (z = -0.075)
-    palm_boxes=(Box(size=(0.085, 0.045, 0.065), pos=(0.0, 0.0, -0.1075)),),  # flange (z = -0.14) .. z = -0.075
-    tcp_offset=0.14,
-    force_limit=100.0,
-    finger_mass=0.06,
-    body_mass=0.8,
-    closing_speed=0.15,
-    source=("Robotiq 2F-85 data sheet: stroke 85 mm, grip force 20-235 N (we use 100 N, a mid setting), speed "
-            "20-150 mm/s (we use the maximum), 0.925 kg. Pads/links/housing sizes approximated as boxes after the "
-            "MuJoCo Menagerie 2F-85 model; 4-bar linkage replaced by prismatic jaws (pads stay parallel; their "
-            "~1 cm z travel over the stroke is neglected)."),
-)
+#: A mesh pad's contact face may lie this far (m) from ``max_width / 2`` in the open gripper's geometry.
+_FACE_TOL = 5e-4
+#: A mesh piece whose convex hull is this much larger than the piece is refused as not convex (MuJoCo would
+#: collide its hull).
+_MAX_HULL_EXCESS = 0.05
+#: Suffixes of gripper files.
+GRIPPER_FILE_SUFFIXES = (".yaml", ".yml", ".json")
+#: The folder of the bundled gripper files.
+GRIPPERS_DIR = Path(__file__).resolve().parents[2] / "assets" / "grippers"
+_BUNDLED = {"box_jaw": "box_jaw.yaml", "panda": "panda/panda.yaml", "robotiq_2f85": "robotiq_2f85.yaml"}
+#: sha256 (first 16 hex digits) of every file the bundled grippers are read from, relative to GRIPPERS_DIR. The
+#: bundled grippers are part of the library, so their files must count as code: a stage's content key holds the
+#: digest of this module, and with it these digests, so editing a bundled file (and then this table, which
+#: tests/test_grippers.py checks) re-runs the stages that use grippers, with the same random draws.
+BUNDLED_DIGESTS = {
+    "box_jaw.yaml": "329280a73f8064fc",
+    "panda/finger.obj": "67373fdf9def1084",
+    "panda/hand.obj": "feaab1d7eddd6fcb",
+    "panda/pad.obj": "88587d01d351de87",
+    "panda/panda.yaml": "f5ac329df019f158",
+    "robotiq_2f85.yaml": "6db6df18957fc96a",
+}
+#: Keys a gripper file may have besides the :class:`GripperSpec` fields.
+_FILE_ONLY_KEYS = ("frame",)
+_FILE_DEFAULTS = {"min_width": 0.0, "pad_friction": (1.0, 0.005, 0.0001)}
+_FRAMES = ("tcp", "base")
 
-# Franka Emika Panda hand, in ACRONYM's gripper frame (z approach, x closing; TCP 0.1034 m from the hand frame).
-# Franka data sheet: travel 80 mm, continuous grip force 70 N (140 N peak), ~0.73 kg; franka_gripper's maximum
-# width speed 0.1 m/s. Fingers from z = 0.0584 (hand frame) to the tips at ~0.112 (ACRONYM's gripper marker);
-# fingertip pads ~18 x 18 mm, 8 mm thick (MuJoCo Menagerie's fingertip pad boxes: 17 x 17 x 8 mm).
-_PANDA = GripperSpec(
-    name="panda",
-    min_width=0.0,
-    max_width=0.08,
-    pad_size=(0.008, 0.018, 0.018),
-    pad_friction=(1.0, 0.005, 0.0001),
-    finger_size=(0.010, 0.020, 0.054),  # tip at +0.009 (hand z 0.1124), root at -0.045 (hand z 0.0584)
-    palm_boxes=(Box(size=(0.18, 0.06, 0.0584), pos=(0.0, 0.0, -0.1034 + 0.0292)),),  # hand z 0 .. 0.0584
-    tcp_offset=0.1034,
-    force_limit=70.0,
-    finger_mass=0.015,
-    body_mass=0.7,
-    closing_speed=0.1,
-    source=("Franka Emika Panda hand data sheet: 80 mm travel, 70 N continuous force, 0.73 kg; ACRONYM's gripper "
-            "frame and TCP offset (0.1034 m); finger/pad boxes after ACRONYM's franka gripper marker and MuJoCo "
-            "Menagerie's fingertip pads; the hand body approximated by one bounding box."),
-)
 
-# A simple test gripper: two box jaws and one palm box, nothing borrowed from a real device.
-_BOX_JAW = GripperSpec(
-    name="box_jaw",
-    min_width=0.0,
-    max_width=0.1,
-    pad_size=(0.01, 0.03, 0.04),
-    pad_friction=(1.0, 0.005, 0.0001),
-    finger_size=(0.01, 0.03, 0.08),  # tip at +0.02, root at -0.06
-    palm_boxes=(Box(size=(0.16, 0.04, 0.04), pos=(0.0, 0.0, -0.08)),),  # z -0.1 .. -0.06
-    tcp_offset=0.1,
-    force_limit=100.0,
-    finger_mass=0.05,
-    body_mass=0.5,
-    closing_speed=0.2,
-    source="Synthetic test gripper: two box jaws (0-100 mm) and one palm box.",
-)
+def _shape_dict(shape: Shape) -> dict:
+    if isinstance(shape, Box):
+        return {"size": list(shape.size), "pos": list(shape.pos)}
+    return {"vertices": [list(v) for v in shape.vertices]}
 
-#: Registered grippers by name.
-GRIPPERS: dict[str, GripperSpec] = {g.name: g for g in (_BOX_JAW, _PANDA, _ROBOTIQ_2F85)}
+
+def _bundled_names() -> str:
+    return ", ".join(sorted(_BUNDLED))
+
+
+def _mesh_pieces(path: Path, scale: float, where: str) -> list[np.ndarray]:
+    """Vertices of the convex hull of each connected component of the mesh file ``path`` (times ``scale``)."""
+    import trimesh
+
+    if not path.is_file():
+        raise SettingsError(f"{where}: mesh file {path} not found")
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many types for unreadable files
+        raise SettingsError(f"{where}: cannot read mesh file {path} ({type(exc).__name__}: {exc})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise SettingsError(f"{where}: mesh file {path} holds no triangles")
+    pieces = []
+    for k, part in enumerate(mesh.split(only_watertight=False) or [mesh]):
+        part = part.copy()
+        part.apply_scale(scale)
+        hull = part.convex_hull
+        if part.is_watertight and part.volume > 0 and hull.volume > (1.0 + _MAX_HULL_EXCESS) * part.volume:
+            raise SettingsError(
+                f"{where}: {path} piece {k} is not convex (its hull is {hull.volume / part.volume - 1:.0%} larger); "
+                "MuJoCo collides convex hulls, so split it into convex pieces (e.g. with CoACD, as "
+                "assets/make_grippers.py does) and list them"
+            )
+        pieces.append(np.asarray(hull.vertices, dtype=float))
+    return pieces
+
+
+def _shapes(key: str, value: Any, base_dir: Path, shift: np.ndarray) -> list[Shape]:
+    """The shapes of a file entry: a box ``{size, pos}``, a mesh file ``{mesh, scale}`` (one piece per connected
+    component) or inline ``{vertices}``; ``shift`` moves them from the file's frame to the TCP frame."""
+    items = [value] if isinstance(value, Mapping) else value
+    if not isinstance(items, (list, tuple)):
+        raise SettingsError(f"{key}: must be a list of geoms ({{size, pos}}, {{mesh}} or {{vertices}}), got "
+                            f"{_short(value)}")
+    out: list[Shape] = []
+    for i, item in enumerate(items):
+        where = key if isinstance(value, Mapping) else f"{key}[{i}]"
+        kinds = {"size": ("size", "pos"), "mesh": ("mesh", "scale"), "vertices": ("vertices",)}
+        kind = next((k for k in kinds if isinstance(item, Mapping) and k in item), None)
+        if kind is None:
+            raise SettingsError(f"{where}: must be a box {{size, pos}}, a mesh file {{mesh, scale}} or "
+                                f"{{vertices}}, got {_short(item)}")
+        unknown = sorted(set(item) - set(kinds[kind]))
+        if unknown:
+            raise SettingsError(f"{where}: unknown key {unknown[0]!r}; a {kind} entry has: {', '.join(kinds[kind])}")
+        try:
+            if kind == "size":
+                pos = np.asarray(check_vector("pos", item.get("pos", (0.0, 0.0, 0.0)), 3)) + shift
+                out.append(Box(size=item["size"], pos=tuple(pos)))
+            elif kind == "vertices":
+                vertices = np.asarray(Mesh(item["vertices"]).vertices) + shift
+                out.append(Mesh(vertices))
+            else:
+                name = item["mesh"]
+                check("mesh", isinstance(name, str) and bool(name), "be a file name", name)
+                scale = check_number("scale", item.get("scale", 1.0), low=0.0, low_open=True)
+                path = base_dir / name
+                out += [Mesh(v + shift, file=str(path)) for v in _mesh_pieces(path, scale, "mesh")]
+        except SettingsError as exc:
+            raise SettingsError(f"{where}: {exc}") from None
+    return out
+
+
+def gripper_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike = ".", file: str = "") -> GripperSpec:
+    """A :class:`GripperSpec` from the contents of a gripper file (see :func:`read_gripper`); mesh files are
+    relative to ``base_dir``. :class:`SettingsError` names the offending key."""
+    if not isinstance(data, Mapping):
+        raise SettingsError(f"must be a mapping of gripper settings (name, max_width, ...), got {_short(data)}")
+    names = [f.name for f in fields(GripperSpec) if f.name != "file"]
+    unknown = sorted(str(k) for k in set(data) - set(names) - set(_FILE_ONLY_KEYS))
+    if unknown:
+        valid = ", ".join(sorted(names + list(_FILE_ONLY_KEYS)))
+        raise SettingsError(f"{unknown[0]}: unknown key; valid keys: {valid}")
+    values = {**_FILE_DEFAULTS, **{k: v for k, v in data.items() if k in names}}
+    frame = data.get("frame", "tcp")
+    check_choice("frame", frame, _FRAMES)
+    shift = np.zeros(3)
+    if frame == "base":
+        shift[2] = -check_number("tcp_offset", values.get("tcp_offset"), low=0.0, low_open=True)
+    base = Path(base_dir)
+    for key in ("palm_geoms", "finger_geoms"):
+        values[key] = tuple(_shapes(key, values.get(key) or [], base, shift))
+    if values.get("pad_geom") is not None:
+        pad = _shapes("pad_geom", values["pad_geom"], base, shift)
+        check("pad_geom", len(pad) == 1, "be one convex piece", f"{len(pad)} pieces")
+        values["pad_geom"] = pad[0]
+        lo, hi = pad[0].bounds
+        values.setdefault("pad_size", tuple(hi - lo))
+    boxes = values.get("palm_boxes") or []
+    if not isinstance(boxes, (list, tuple)) or not all(isinstance(b, Mapping) and "size" in b for b in boxes):
+        raise SettingsError(f"palm_boxes: must be a list of boxes {{size, pos}}, got {_short(boxes)}")
+    values["palm_boxes"] = tuple(_shapes("palm_boxes", list(boxes), base, shift))
+    if values["finger_geoms"] and "finger_size" not in values:
+        pieces = values["finger_geoms"] + ((values["pad_geom"],) if values.get("pad_geom") is not None else ())
+        lo, hi = _bounds_of(pieces)
+        values["finger_size"] = tuple(hi - lo)
+    missing = [f.name for f in fields(GripperSpec)
+               if f.name not in values and f.default is MISSING and f.default_factory is MISSING]
+    if missing:
+        raise SettingsError(f"{missing[0]}: missing (a gripper file needs {', '.join(missing)})")
+    return GripperSpec(**values, file=file)
+
+
+_FILE_CACHE: dict[tuple, GripperSpec] = {}
+
+
+def read_gripper(path: str | os.PathLike) -> GripperSpec:
+    """Read a gripper file: YAML (``.yaml``, ``.yml``) or JSON (``.json``), a mapping of :class:`GripperSpec` fields.
+
+    * Required: ``name``, ``max_width``, ``tcp_offset``, ``force_limit``, ``closing_speed``, ``finger_mass``,
+      ``body_mass`` and the geometry; optional: ``min_width`` (0), ``pad_friction`` (1, 0.005, 0.0001),
+      ``pad_condim`` (4), ``source``.
+    * Geometry, in metres, in the TCP frame (z approach, x closing, origin midway between the pads) or, with
+      ``frame: base``, in the hand-base frame (the TCP at ``tcp_offset`` along z); the fingers as they are when
+      open (pad separation ``max_width``):
+
+      - boxes by size: ``pad_size``, ``finger_size`` ([thickness x, width y, length z]) and ``palm_boxes``
+        (a list of ``{size: [x, y, z], pos: [x, y, z]}``), placed as in :class:`GripperSpec`; or
+      - pieces per body: ``palm_geoms`` and ``finger_geoms`` (lists) and ``pad_geom`` (one), each a box
+        ``{size, pos}``, a mesh file ``{mesh: hand.obj, scale: 1.0}`` (relative to the gripper file; each connected
+        component is one convex piece, a non-convex one is refused) or ``{vertices: [[x, y, z], ...]}``. Give the
+        right finger (+x) and its pad; the left one is it turned 180 degrees about z. The pad's contact face
+        (its smallest x) must lie at ``max_width / 2``. ``pad_size`` (the contact area) and ``finger_size`` default
+        to the pieces' bounding boxes.
+
+    Returns the spec (cached while the file is unchanged). Raises :class:`SettingsError` in one line,
+    ``gripper: <path>: <what>``.
+    """
+    label = os.fspath(path)
+    p = Path(label)
+    if p.suffix.lower() not in GRIPPER_FILE_SUFFIXES:
+        raise SettingsError(f"gripper: {label}: not a gripper file (expected {', '.join(GRIPPER_FILE_SUFFIXES)}); "
+                            f"bundled grippers: {_bundled_names()}")
+    try:
+        stat = p.stat()
+        if not p.is_file():
+            raise IsADirectoryError(label)
+    except OSError:
+        raise SettingsError(f"gripper: {label}: no such gripper file; bundled grippers: {_bundled_names()}") from None
+    key = (label, str(p.resolve()), stat.st_mtime_ns, stat.st_size)
+    if key in _FILE_CACHE:
+        return _FILE_CACHE[key]
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SettingsError(f"gripper: {label}: cannot read it ({type(exc).__name__}: {exc})") from None
+    try:
+        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+    except json.JSONDecodeError as exc:
+        raise SettingsError(f"gripper: {label}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        raise SettingsError(f"gripper: {label}: not valid YAML ({problem}{where})") from None
+    try:
+        spec = gripper_from_dict(data, base_dir=p.parent, file=label)
+    except SettingsError as exc:
+        raise SettingsError(f"gripper: {label}: {' '.join(str(exc).split())}") from None
+    _FILE_CACHE[key] = spec
+    return spec
+
+
+def write_gripper(spec: GripperSpec, path: str | os.PathLike) -> Path:
+    """Write ``spec`` as a gripper file (YAML, or JSON for ``.json``) that :func:`read_gripper` reads back into an
+    equal spec (meshes written as their vertices). Returns the path."""
+    p = Path(path)
+    if p.suffix.lower() not in GRIPPER_FILE_SUFFIXES:
+        raise SettingsError(f"path: a gripper file ends in {', '.join(GRIPPER_FILE_SUFFIXES)}, got {p.name!r}")
+    data = spec.to_dict()
+    text = json.dumps(data, indent=1) + "\n" if p.suffix.lower() == ".json" else yaml.safe_dump(data, sort_keys=False)
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def gripper_files(name_or_path: str | os.PathLike) -> tuple[str, ...]:
+    """The files a gripper given by path is read from (its gripper file, then its mesh files), whose bytes a stage
+    puts into its content keys; () for a registered name (the bundled files count as code: see
+    :data:`BUNDLED_DIGESTS`)."""
+    if isinstance(name_or_path, str) and name_or_path in GRIPPERS:
+        return ()
+    spec = load_gripper(name_or_path)
+    files = [spec.file] if spec.file else []
+    pieces = (*spec.palm_geoms, *spec.finger_geoms, *(() if spec.pad_geom is None else (spec.pad_geom,)))
+    for piece in pieces:
+        if isinstance(piece, Mesh) and piece.file and piece.file not in files:
+            files.append(piece.file)
+    return tuple(files)
+
+
+def _read_bundled(name: str) -> GripperSpec:
+    spec = read_gripper(GRIPPERS_DIR / _BUNDLED[name])
+    if spec.name != name:
+        raise SettingsError(f"gripper: {spec.file}: name {spec.name!r} differs from its registry name {name!r}")
+    return spec
+
+
+#: Registered grippers by name, read from their files in ``assets/grippers``.
+GRIPPERS: dict[str, GripperSpec] = {name: _read_bundled(name) for name in sorted(_BUNDLED)}
 #: The default gripper's name.
 DEFAULT_GRIPPER = "robotiq_2f85"
 
@@ -308,12 +627,23 @@ def jaw_opening(width, width_margin: float, min_width: float, max_width: float) 
     return np.clip(np.asarray(width, dtype=float) + width_margin, min_width, max_width)
 
 
-def load_gripper(name: str) -> GripperSpec:
-    """The registered :class:`GripperSpec` called ``name``; :class:`SettingsError` listing the choices otherwise."""
-    try:
+def is_gripper_path(name: Any) -> bool:
+    """Whether ``name`` is meant as a gripper file rather than a registered name: a path object, or a string with a
+    gripper-file suffix or a path separator."""
+    if isinstance(name, os.PathLike):
+        return True
+    return isinstance(name, str) and (name.lower().endswith(GRIPPER_FILE_SUFFIXES) or "/" in name or os.sep in name)
+
+
+def load_gripper(name: str | os.PathLike) -> GripperSpec:
+    """The registered :class:`GripperSpec` called ``name``, or the gripper file at path ``name``
+    (:func:`read_gripper`); :class:`SettingsError` listing the registered names otherwise."""
+    if isinstance(name, str) and name in GRIPPERS:
         return GRIPPERS[name]
-    except (KeyError, TypeError):
-        raise SettingsError(f"gripper: unknown {name!r}; choose one of: {', '.join(sorted(GRIPPERS))}") from None
+    if is_gripper_path(name):
+        return read_gripper(name)
+    raise SettingsError(f"gripper: unknown {name!r}; choose one of: {', '.join(sorted(GRIPPERS))} (or give the path "
+                        f"of a gripper file: {', '.join(GRIPPER_FILE_SUFFIXES)})")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -397,13 +727,8 @@ def _bounding_box(boxes) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _add_collision_box(body: mujoco.MjsBody, name: str, full_size, pos, *, mode: str, rgba, friction,
-                       condim: int) -> mujoco.MjsGeom:
-    geom = body.add_geom()
+def _set_contact(geom: mujoco.MjsGeom, name: str, *, mode: str, rgba, friction, condim: int) -> mujoco.MjsGeom:
     geom.name = name
-    geom.type = mujoco.mjtGeom.mjGEOM_BOX
-    geom.size = [s / 2.0 for s in full_size]
-    geom.pos = list(pos)
     geom.contype = GRIPPER_CONTYPE
     geom.conaffinity = GRIPPER_CONAFFINITY
     geom.group = GRIPPER_GEOM_GROUP
@@ -416,6 +741,49 @@ def _add_collision_box(body: mujoco.MjsBody, name: str, full_size, pos, *, mode:
     geom.solimp = list(_CONTACT_SOLIMP)
     geom.solmix = _CONTACT_SOLMIX
     return geom
+
+
+def _add_collision_box(body: mujoco.MjsBody, name: str, full_size, pos, *, mode: str, rgba, friction,
+                       condim: int) -> mujoco.MjsGeom:
+    geom = body.add_geom()
+    geom.type = mujoco.mjtGeom.mjGEOM_BOX
+    geom.size = [s / 2.0 for s in full_size]
+    geom.pos = list(pos)
+    return _set_contact(geom, name, mode=mode, rgba=rgba, friction=friction, condim=condim)
+
+
+def _add_shape(model: mujoco.MjSpec, body: mujoco.MjsBody, name: str, shape: Shape, *, mode: str, rgba, friction,
+               condim: int) -> mujoco.MjsGeom:
+    """A :class:`Box` or convex :class:`Mesh` collision geom (the mesh asset is named like the geom)."""
+    if isinstance(shape, Box):
+        return _add_collision_box(body, name, shape.size, shape.pos, mode=mode, rgba=rgba, friction=friction,
+                                  condim=condim)
+    mesh = model.add_mesh()
+    mesh.name = name
+    mesh.uservert = shape.array.reshape(-1).tolist()
+    geom = body.add_geom()
+    geom.type = mujoco.mjtGeom.mjGEOM_MESH
+    geom.meshname = name
+    return _set_contact(geom, name, mode=mode, rgba=rgba, friction=friction, condim=condim)
+
+
+def _pad_face_x(spec: GripperSpec) -> float:
+    """x (m) of the right pad's contact face in the open gripper's geometry (``max_width / 2`` for a box pad)."""
+    return float(spec.pad_geom.bounds[0][0]) if spec.pad_geom is not None else spec.max_width / 2.0
+
+
+def _in_jaw(shape: Shape, face_x: float, sign: float) -> Shape:
+    """``shape`` (the right finger's, TCP frame, open) in a jaw's body frame (origin: the pad's contact face): moved
+    by ``-face_x`` along x and, for the left jaw (``sign`` -1), turned 180 degrees about z."""
+    flip = np.array([sign, sign, 1.0])
+    if isinstance(shape, Box):
+        return Box(size=shape.size, pos=tuple((np.asarray(shape.pos) - [face_x, 0.0, 0.0]) * flip))
+    return Mesh((shape.array - [face_x, 0.0, 0.0]) * flip, file=shape.file)
+
+
+_PALM_RGBA = (0.25, 0.25, 0.28, 1.0)
+_PAD_RGBA = (0.85, 0.45, 0.1, 1.0)
+_FINGER_RGBA = (0.45, 0.45, 0.5, 1.0)
 
 
 def _build_into(spec: GripperSpec, parent, *, p: str, friction: str, model: mujoco.MjSpec) -> None:
@@ -444,13 +812,19 @@ def _build_into(spec: GripperSpec, parent, *, p: str, friction: str, model: mujo
     tcp.size = [0.004, 0.004, 0.004]
     tcp.rgba = [0.2, 1.0, 0.2, 0.5]
     tcp.group = 5
-    for k, box in enumerate(spec.palm_boxes):
-        _add_collision_box(base, f"{p}palm_{k}", box.size, box.pos, mode=friction, rgba=(0.25, 0.25, 0.28, 1.0),
-                           friction=spec.pad_friction, condim=3)
+    if spec.palm_geoms:
+        for k, shape in enumerate(spec.palm_geoms):
+            _add_shape(model, base, f"{p}palm_{k}", shape, mode=friction, rgba=_PALM_RGBA, friction=spec.pad_friction,
+                       condim=3)
+    else:
+        for k, box in enumerate(spec.palm_boxes):
+            _add_collision_box(base, f"{p}palm_{k}", box.size, box.pos, mode=friction, rgba=_PALM_RGBA,
+                               friction=spec.pad_friction, condim=3)
 
     half_open = spec.max_width / 2.0
     pad_t, _, pad_l = spec.pad_size
     fin_t, _, fin_l = spec.finger_size
+    face_x = _pad_face_x(spec)
     for side, sign in (("left", -1.0), ("right", 1.0)):
         # Body frame = the pad contact face's centre when fully open; the joint's qpos0 (= ref) is max_width / 2.
         jaw = base.add_body()
@@ -473,12 +847,30 @@ def _build_into(spec: GripperSpec, parent, *, p: str, friction: str, model: mujo
         fin_pos = [sign * (pad_t + fin_t / 2.0), 0.0, pad_l / 2.0 - fin_l / 2.0]
         jaw.explicitinertial = True
         jaw.mass = spec.finger_mass
-        jaw.ipos = fin_pos
-        jaw.inertia = _box_inertia(spec.finger_mass, spec.finger_size)
-        _add_collision_box(jaw, f"{p}{side}_pad", spec.pad_size, pad_pos, mode=friction,
-                           rgba=(0.85, 0.45, 0.1, 1.0), friction=spec.pad_friction, condim=spec.pad_condim)
-        _add_collision_box(jaw, f"{p}{side}_finger", spec.finger_size, fin_pos, mode=friction,
-                           rgba=(0.45, 0.45, 0.5, 1.0), friction=spec.pad_friction, condim=3)
+        if spec.pad_geom is None and not spec.finger_geoms:
+            jaw.ipos = fin_pos
+            jaw.inertia = _box_inertia(spec.finger_mass, spec.finger_size)
+        if spec.pad_geom is None:
+            pad = Box(size=spec.pad_size, pos=pad_pos)
+            _add_collision_box(jaw, f"{p}{side}_pad", spec.pad_size, pad_pos, mode=friction, rgba=_PAD_RGBA,
+                               friction=spec.pad_friction, condim=spec.pad_condim)
+        else:
+            pad = _in_jaw(spec.pad_geom, face_x, sign)
+            _add_shape(model, jaw, f"{p}{side}_pad", pad, mode=friction, rgba=_PAD_RGBA, friction=spec.pad_friction,
+                       condim=spec.pad_condim)
+        if not spec.finger_geoms:
+            links = [Box(size=spec.finger_size, pos=fin_pos)]
+            _add_collision_box(jaw, f"{p}{side}_finger", spec.finger_size, fin_pos, mode=friction,
+                               rgba=_FINGER_RGBA, friction=spec.pad_friction, condim=3)
+        else:
+            links = [_in_jaw(shape, face_x, sign) for shape in spec.finger_geoms]
+            for k, shape in enumerate(links):
+                _add_shape(model, jaw, f"{p}{side}_finger" + (f"_{k}" if k else ""), shape, mode=friction,
+                           rgba=_FINGER_RGBA, friction=spec.pad_friction, condim=3)
+        if spec.pad_geom is not None or spec.finger_geoms:  # inertia of the jaw's bounding box
+            jlo, jhi = _bounds_of([pad, *links])
+            jaw.ipos = list((jlo + jhi) / 2.0)
+            jaw.inertia = _box_inertia(spec.finger_mass, jhi - jlo)
 
     tendon = model.add_tendon()
     tendon.name = f"{p}width"
@@ -640,13 +1032,15 @@ def set_gripper_width(model: mujoco.MjModel, data: mujoco.MjData, width: float, 
 
 
 def gripper_width(model: mujoco.MjModel, data: mujoco.MjData, *, prefix: str = "gripper/") -> float:
-    """Current pad separation (m): distance between the pads' contact faces along the TCP x axis, from the pad
-    geoms' poses (needs ``mj_forward``/``mj_step`` to have run)."""
-    left = _id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}left_pad")
-    right = _id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{prefix}right_pad")
+    """Current pad separation (m): distance between the pads' contact faces along the TCP x axis, from the jaw
+    bodies' poses (each jaw's frame is its pad's contact face; needs ``mj_forward``/``mj_step`` to have run)."""
+    left = _id(model, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}left_jaw")
+    right = _id(model, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}right_jaw")
     x_axis = gripper_pose(model, data, prefix=prefix)[:3, 0]
-    centres = float(np.dot(data.geom_xpos[right] - data.geom_xpos[left], x_axis))
-    return centres - float(model.geom_size[left][0] + model.geom_size[right][0])
+    return float(np.dot(data.xpos[right] - data.xpos[left], x_axis))
+
+
+_FINGER_PIECE = re.compile(r"(left|right)_finger_[0-9]+")
 
 
 def pad_geom_ids(model: mujoco.MjModel, *, prefix: str = "gripper/") -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -656,8 +1050,9 @@ def pad_geom_ids(model: mujoco.MjModel, *, prefix: str = "gripper/") -> tuple[tu
 
 
 def gripper_geom_ids(model: mujoco.MjModel, *, prefix: str = "gripper/") -> dict[str, tuple[int, ...]]:
-    """Geom ids of the gripper by role: ``left_pad``, ``right_pad``, ``pad`` (both), ``finger`` (both fingers),
-    ``palm``, ``all``. Found by name (``<prefix>left_pad`` ...), so it works however the gripper was attached."""
+    """Geom ids of the gripper by role: ``left_pad``, ``right_pad``, ``pad`` (both), ``finger`` (every piece of both
+    finger links), ``palm``, ``all``. Found by name (``<prefix>left_pad``, ``<prefix>left_finger``,
+    ``<prefix>left_finger_<k>``, ``<prefix>palm_<k>`` ...), so it works however the gripper was attached."""
     out: dict[str, list[int]] = {"left_pad": [], "right_pad": [], "finger": [], "palm": []}
     for gid in range(model.ngeom):
         name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, gid) or ""
@@ -666,7 +1061,7 @@ def gripper_geom_ids(model: mujoco.MjModel, *, prefix: str = "gripper/") -> dict
         local = name[len(prefix):]
         if local in ("left_pad", "right_pad"):
             out[local].append(gid)
-        elif local in ("left_finger", "right_finger"):
+        elif local in ("left_finger", "right_finger") or _FINGER_PIECE.fullmatch(local):
             out["finger"].append(gid)
         elif local.startswith("palm_"):
             out["palm"].append(gid)
@@ -676,3 +1071,188 @@ def gripper_geom_ids(model: mujoco.MjModel, *, prefix: str = "gripper/") -> dict
     res["pad"] = res["left_pad"] + res["right_pad"]
     res["all"] = res["pad"] + res["finger"] + res["palm"]
     return res
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Picture
+# ---------------------------------------------------------------------------------------------------------------
+
+#: Pose of the TCP in the picture's world: approach (TCP z) pointing down, closing (TCP x) to the right.
+_PICTURE_POSE = np.diag([1.0, -1.0, -1.0, 1.0])
+_AXIS_COLOURS = ((220, 30, 30), (30, 160, 30), (40, 70, 230))
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: one bitmap size
+        return ImageFont.load_default()
+
+
+def _picture_frame(spec: GripperSpec) -> tuple[np.ndarray, float]:
+    """(centre (3,), size m) of the region the picture shows, in the picture's world (TCP at the origin)."""
+    lo, hi = _bounds_of(list(spec.palm_boxes) + [Box(size=spec.finger_size, pos=(0.0, 0.0, 0.0))])
+    z_tip = max(spec.pad_size[2] / 2.0, 0.0)
+    if spec.pad_geom is not None:
+        z_tip = float(spec.pad_geom.bounds[1][2])
+    for piece in spec.finger_geoms:
+        z_tip = max(z_tip, float(piece.bounds[1][2]))
+    z_back = float(min(lo[2], -spec.tcp_offset))
+    half_x = max(abs(lo[0]), abs(hi[0]), spec.max_width / 2.0 + spec.finger_size[0] + spec.pad_size[0])
+    centre = np.array([0.0, 0.0, -(z_back + z_tip) / 2.0])  # world z = -TCP z
+    return centre, max(2.0 * half_x, z_tip - z_back)
+
+
+def _views(centre: np.ndarray, extent: float, px: int):
+    """(title, Camera) of the two views: front (along TCP y: closing left-right, approach down) and three-quarter."""
+    import math
+
+    from graspgen.sim.scene_model import Camera, camera_on_sphere, intrinsics_from_fov
+
+    fov = math.radians(30.0)
+    distance = 0.62 * extent / math.tan(fov / 2.0) + 0.05
+    K = intrinsics_from_fov(px, px, fov)
+    return [("front", Camera(K, camera_on_sphere(centre, distance, 0.0, -math.pi / 2), px, px)),
+            ("3/4 view", Camera(K, camera_on_sphere(centre, distance, 0.45, -math.pi / 2 + 0.7), px, px))]
+
+
+def _tcp_axes(draw, camera, length: float) -> None:
+    """The TCP frame's axes (x red, y green, z blue) drawn as lines from the TCP origin."""
+    from graspgen.sim.scene_model import project, transform_points
+
+    T_cam_world = np.linalg.inv(np.asarray(camera.T_world_camera, dtype=float))
+    ends = _PICTURE_POSE[:3, 3] + length * _PICTURE_POSE[:3, :3].T
+    points = transform_points(T_cam_world, np.vstack([_PICTURE_POSE[:3, 3], ends]))
+    uv = project(camera.K, points)
+    font = _font(13)
+    for k, name in enumerate("xyz"):
+        draw.line([tuple(uv[0]), tuple(uv[k + 1])], fill=_AXIS_COLOURS[k], width=3)
+        draw.text((uv[k + 1][0] + 3, uv[k + 1][1] - 7), name, fill=_AXIS_COLOURS[k], font=font)
+    r = 3
+    draw.ellipse([uv[0][0] - r, uv[0][1] - r, uv[0][0] + r, uv[0][1] + r], fill=(0, 0, 0))
+
+
+def _render_views(spec: GripperSpec, widths, px: int):
+    """MuJoCo renders: {(width, view title): PIL image}. RenderError when OpenGL is unavailable."""
+    from PIL import Image, ImageDraw
+
+    from graspgen.sim.scene_model import SceneRenderer
+
+    world = mujoco.MjSpec()
+    world.visual.global_.offwidth = px
+    world.visual.global_.offheight = px
+    light = world.worldbody.add_light()
+    light.pos = [0.3, -0.6, 0.8]
+    light.dir = [-0.3, 0.6, -0.8]
+    attach_gripper(world, spec)
+    model = world.compile()
+    data = mujoco.MjData(model)
+    centre, extent = _picture_frame(spec)
+    out = {}
+    with SceneRenderer(model, px, px) as renderer:
+        for width in widths:
+            set_gripper_pose(model, data, _PICTURE_POSE)
+            set_gripper_width(model, data, width, instant=True)
+            for title, camera in _views(centre, extent, px):
+                image = Image.fromarray(renderer.render(data, camera, rgb=True).rgb)
+                _tcp_axes(ImageDraw.Draw(image), camera, 0.03)
+                out[width, title] = image
+    return out
+
+
+def _wireframe_views(spec: GripperSpec, widths, px: int):
+    """Matplotlib drawings of the collision geoms (outlines of each piece's silhouette), same layout as
+    :func:`_render_views`: {(width, view title): PIL image}."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+    from PIL import Image
+    from scipy.spatial import ConvexHull
+
+    model = build_gripper(spec).compile()
+    data = mujoco.MjData(model)
+    roles = gripper_geom_ids(model)
+    colours = {g: tuple(model.geom_rgba[g][:3]) for g in roles["all"]}
+    out = {}
+    for width in widths:
+        set_gripper_pose(model, data, _PICTURE_POSE)
+        set_gripper_width(model, data, width, instant=True)
+        for title, axes in (("front", (0, 2)), ("side", (1, 2))):
+            fig, ax = plt.subplots(figsize=(px / 100, px / 100), dpi=100)
+            for g in roles["all"]:
+                R, p = data.geom_xmat[g].reshape(3, 3), data.geom_xpos[g]
+                if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+                    m = model.geom_dataid[g]
+                    local = model.mesh_vert[model.mesh_vertadr[m]:model.mesh_vertadr[m] + model.mesh_vertnum[m]]
+                else:
+                    local = np.array(np.meshgrid(*[[-h, h] for h in model.geom_size[g]])).reshape(3, -1).T
+                pts = (local @ R.T + p)[:, axes]
+                hull = pts[ConvexHull(pts).vertices]
+                ax.fill(hull[:, 0], hull[:, 1], color=colours[g], alpha=0.35, lw=1.2, ec=colours[g])
+            for k in range(3):
+                tip = 0.03 * _PICTURE_POSE[:3, k]
+                if np.hypot(tip[axes[0]], tip[axes[1]]) > 1e-6:
+                    ax.annotate("", xy=(tip[axes[0]], tip[axes[1]]), xytext=(0, 0),
+                                arrowprops={"arrowstyle": "->", "color": np.divide(_AXIS_COLOURS[k], 255), "lw": 2})
+                    ax.text(tip[axes[0]], tip[axes[1]], "xyz"[k], color=np.divide(_AXIS_COLOURS[k], 255))
+                    ax.update_datalim([(1.3 * tip[axes[0]], 1.3 * tip[axes[1]])])
+            ax.autoscale_view()
+            ax.set_aspect("equal")
+            ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(4))
+            ax.set_xlabel(f"world {'xy'[axes[0]]} (m)")
+            ax.set_title(title, fontsize=9)
+            fig.tight_layout()
+            buffer = io.BytesIO()
+            fig.savefig(buffer, format="png")
+            plt.close(fig)
+            out[width, title] = Image.open(io.BytesIO(buffer.getvalue())).convert("RGB").resize((px, px))
+    return out
+
+
+def gripper_picture(spec: GripperSpec, *, size: int = 360, render: bool = True):
+    """A PIL image of ``spec`` open (``max_width``) and closed (``min_width``), each from the front (closing axis
+    left-right, approach down) and in a three-quarter view, with the TCP frame (x red, y green, z blue) and a caption
+    (name, stroke, TCP offset, force, geometry).
+
+    Drawn by MuJoCo's offscreen renderer (the collision geoms: palm dark grey, finger links grey, pads orange); with
+    ``render=False``, or when no OpenGL back end is available, a matplotlib drawing of the geoms' silhouettes
+    (front and side) instead, which the caption says.
+    """
+    from PIL import Image, ImageDraw
+
+    from graspgen.errors import RenderError
+
+    widths = (spec.max_width, spec.min_width)
+    how = "MuJoCo render"
+    try:
+        if not render:
+            raise RenderError("rendering off")
+        views = _render_views(spec, widths, size)
+    except RenderError as exc:
+        views = _wireframe_views(spec, widths, size)
+        how = "wireframe of the collision geoms" + ("" if not render else f" (no rendering: {exc})")
+    titles = list(dict.fromkeys(t for _, t in views))
+    top, label_h = 58, 20
+    sheet = Image.new("RGB", (size * len(titles), top + len(widths) * (size + label_h)), (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    geometry = "convex meshes" if spec.uses_meshes else "boxes"
+    draw.text((6, 4), f"{spec.name}" + (f"  ({spec.file})" if spec.file else ""), fill=(0, 0, 0), font=_font(16))
+    draw.text((6, 24), f"stroke {spec.min_width * 1e3:.0f}-{spec.max_width * 1e3:.0f} mm, TCP {spec.tcp_offset:.4g} m "
+              f"from the hand base along z, force {spec.force_limit:.0f} N, {spec.closing_speed:.2g} m/s; {geometry}",
+              fill=(0, 0, 0), font=_font(12))
+    draw.text((6, 40), f"{how}; TCP frame: x closing (red), y (green), z approach (blue); pads orange",
+              fill=(80, 80, 80), font=_font(12))
+    for row, width in enumerate(widths):
+        y = top + row * (size + label_h)
+        state = "open" if row == 0 else "closed"
+        for col, title in enumerate(titles):
+            draw.text((col * size + 6, y + 3), f"{state}, width {width * 1e3:.0f} mm, {title}", fill=(0, 0, 0),
+                      font=_font(13))
+            sheet.paste(views[width, title], (col * size, y + label_h))
+    return sheet

@@ -18,6 +18,13 @@ rules are checked once per ``check_interval`` steps on cached ids and views (squ
 allocation beyond a few small temporaries). Measured: 130-190 rollouts/s, within 1.1x of the bare ``mj_step`` cost of
 the same steps.
 
+Protocols (:data:`PROTOCOLS`, ``LiftParams.protocol``): ``table`` is the pipeline's grasp-and-lift above (the default;
+its results are what they were before protocols were named); ``acronym`` is ACRONYM's free-space test: the hand is
+placed at the grasp with open fingers and closes on the floating object, then gravity comes on along the approach
+axis, the hand shakes along and about its own axes, and the label is whether the object is still between the fingers
+(:class:`AcronymParams` cites where each number comes from). On the calibration mug (``bench/fidelity.py``) a held
+object takes ~650-950 steps (0.2-0.8 s closing from fully open, 1 s of shaking, 0.1 s settle), ~50 rollouts/s.
+
 Determinism: every rollout starts from ``mj_resetData`` (which also clears the solver's warm start) plus the saved
 initial ``qpos``, so a rollout's result depends only on its inputs, not on earlier rollouts in the same
 :class:`LiftSimulator`; no wall clock, no threads, no global random state.
@@ -26,22 +33,35 @@ initial ``qpos``, so a rollout's result depends only on its inputs, not on earli
 from __future__ import annotations
 
 import copy
+import dataclasses
 import enum
 import math
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
+from typing import Literal
 
 import mujoco
 import numpy as np
 
-from graspgen.sim.grippers import PhysicsOptions, jaw_opening
-from graspgen.validation import check_bool, check_instance, check_int, check_number, check_transform
+from graspgen.sim.grippers import PhysicsOptions, jaw_opening, pad_geom_ids
+from graspgen.validation import (
+    check,
+    check_bool,
+    check_choice,
+    check_instance,
+    check_int,
+    check_number,
+    check_transform,
+    check_vector,
+)
 
 __all__ = [
     "Outcome",
     "OUTCOME_NAMES",
     "PHASES",
+    "PROTOCOLS",
+    "AcronymParams",
     "LiftParams",
     "RolloutResult",
     "LiftSimulator",
@@ -64,6 +84,10 @@ OUTCOME_NAMES: tuple[str, ...] = tuple(o.name.lower() for o in Outcome)
 
 #: Phases of a rollout, in order; :attr:`RolloutResult.decided_in` is one of them (``"end"``: all phases ran).
 PHASES: tuple[str, ...] = ("placement", "approach", "closing", "lifting", "holding", "shaking", "end")
+
+#: The named protocols (:attr:`LiftParams.protocol`): ``table`` (the pipeline's grasp-and-lift, the default) and
+#: ``acronym`` (ACRONYM's free-space close-and-shake, :class:`AcronymParams`).
+PROTOCOLS: tuple[str, ...] = ("table", "acronym")
 
 # Geom roles (index = outcome code for a gripper contact with such a geom during placement/approach).
 _SUPPORT, _TARGET, _CLUTTER, _GRIPPER = 0, 1, 2, 3
@@ -90,6 +114,113 @@ def _pos_quat(name: str, T) -> tuple[np.ndarray, np.ndarray]:
 
 
 @dataclass(frozen=True)
+class AcronymParams:
+    """Settings of the ``acronym`` protocol (``LiftParams(protocol="acronym")``): ACRONYM's free-space
+    close-and-shake (Eppner, Mousavian, Fox, "ACRONYM: A Large-Scale Grasp Dataset Based on Simulation", ICRA 2021,
+    arXiv:2011.09584; labels made with NVIDIA FleX).
+
+    What comes from where:
+
+    * **ACRONYM (the paper and its files)**: the object floats in free space, no support; the gripper is a free,
+      position-controlled body placed *at* the grasp pose with its fingers open (the files' ``gripper/configuration``
+      is 0.04 m per finger: the Panda fully open); the fingers close under a velocity controller until a force
+      threshold is reached or the hand is fully closed; then the hand shakes: up and down along its approach
+      direction (TCP z), then it rotates about a line parallel to the fingers' prismatic axes (TCP x, taken through
+      the TCP); the label is whether the object is still in contact with both fingers. Object friction 1.0 and
+      density 150 kg/m^3 come with the files (``gen evaluate`` reads them). The paper publishes no amplitude,
+      frequency, duration, closing speed, force threshold or gravity setting.
+    * **The nearest published numbers**: a public FleX grasping scene of the same group (it reads ACRONYM's JSON
+      grasp format; YuMi gripper) places the object relative to a hand in a fixed world orientation, sets gravity
+      to zero, closes at 0.02 m/s under a 10 N motor limit until 20 N of total contact force, shakes 3 cycles per
+      axis of 2 s each (0.5 Hz): +-1 cm along the vertical, then +-pi/32 rad about the closing axis, and waits 5 s.
+      Its linear shake peaks at ~0.1 m/s^2 (0.01 g). We keep its order (linear, then angular) and its ratio of
+      rotation to translation (pi/32 rad per cm), not its magnitudes: with no gravity and a 0.01 g shake nothing
+      loads a grasp, and a frictionless object would stay "held".
+    * **Ours, by physical argument** (not fitted to the calibration labels): gravity is switched on when the
+      fingers have closed, along the approach axis (``gravity="approach"``): the object hangs from a top-down grasp,
+      the direction ACRONYM's "up and down along its approach direction" names; while closing it floats (FleX's
+      free space). On top of it the linear shake peaks at ~1 g (``shake_amplitude`` 0.015 m at 4 Hz: peak
+      1.05 * 0.015 * (2 pi 4)^2 = 9.9 m/s^2, peak speed 0.38 m/s, within a Franka arm's Cartesian limits of
+      13 m/s^2 and 1.7 m/s), so the grasp must carry between 0 and 2 g: twice the object's weight at the peak, the
+      safety factor of 2 used when sizing a gripper's force for a pick with acceleration. The rotation keeps the
+      FleX ratio (``shake_angle`` 0.15 rad: peak 99 rad/s^2, i.e. 1 g tangential 10 cm from the axis, ACRONYM
+      objects' typical half size). 4 Hz keeps the hand within 13 mm / 7.5 degrees of the grasp pose and far below
+      the bandwidth of the hand's weld (5 ms time constant); 2 cycles per axis is the fewest for which the
+      Hann-windowed sine swings fully both ways. Grip force: the Panda's rated continuous force (70 N, the gripper
+      model's ``force_limit``); closing speed: the gripper model's (Panda: 0.1 m/s of width, franka_gripper's
+      maximum).
+
+    Rules: the open hand touching the target at placement -> 1 collision_with_target (any other geom: 0 / 2 as in
+    the table protocol); after closing, not both jaws on the target -> 3 no_contact_established; during the shake
+    and the settle, neither jaw touching the target -> 4 (the object left the hand; decided in ``shaking`` /
+    ``holding``, the rollout stops); at the end both jaws touching -> 5 success, else 4.
+    """
+
+    open_width: float | None = None
+    """Pad separation (m) the jaws open to at placement; null: the gripper's ``max_width`` (ACRONYM's fingers are
+    fully open)."""
+    grip_force: float | None = None
+    """Force (N) each jaw presses with; null: the gripper model's ``force_limit`` (the Panda's rated 70 N). The
+    table protocol's ``grip_force`` does not apply here."""
+    closing_speed: float | None = None
+    """Width rate (m/s) of the closing jaws; null: the gripper model's (Panda 0.1 m/s). The jaw damping is set to
+    ``2 * grip_force / closing_speed``."""
+    gravity: Literal["approach", "off", "world"] = "approach"
+    """Gravity, switched on when closing ends (the object floats while the fingers close, as in FleX's free space):
+    ``approach``: the scene's gravity magnitude along the grasp's approach axis (TCP +z at the grasp), i.e. the
+    object hangs from a top-down grasp, the "up and down along its approach direction" of ACRONYM's shake;
+    ``world``: the scene's gravity vector; ``off``: none at any time (the FleX scene above)."""
+    shake_amplitude: float = 0.015
+    """Peak displacement (m) of the shake along the TCP z (approach) axis (peak acceleration ~ 1.05 *
+    amplitude * (2 pi frequency)^2: ~1 g by default)."""
+    shake_angle: float = 0.15
+    """Peak rotation (rad) of the shake about the TCP x (closing) axis through the TCP."""
+    shake_frequency: float = 4.0
+    """Frequency (Hz) of both shakes (each a sine under a Hann window: starts and ends at rest)."""
+    shake_cycles: int = 2
+    """Oscillations per shake axis (linear first, then angular)."""
+    settle_time: float = 0.1
+    """Time (s) the hand holds still after the shake before the label is read (an object on its way out has left
+    the fingers by then)."""
+    contact_solref: tuple[float, float] | None = None
+    """Gripper contact softness (MuJoCo solref: time constant s, damping ratio) written into every gripper geom;
+    null keeps the gripper model's (4 ms, 1.0)."""
+    contact_solimp: tuple[float, float, float, float, float] | None = None
+    """Gripper contact impedance (MuJoCo solimp: dmin, dmax, width m, midpoint, power); null keeps the gripper
+    model's (0.95, 0.99, 0.001, 0.5, 2)."""
+    torsional_friction: float | None = None
+    """Torsional friction (m) of the pads (their contacts' floor, :mod:`graspgen.sim.grippers`); null keeps the
+    gripper model's (0.005 m). 0 makes the pad contacts points that cannot resist rotation about their line."""
+
+    def __post_init__(self) -> None:
+        for key in ("open_width", "grip_force", "closing_speed"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0, low_open=True))
+        for key in ("shake_amplitude", "shake_angle", "settle_time"):
+            object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0))
+        object.__setattr__(self, "shake_frequency", check_number("shake_frequency", self.shake_frequency, low=0.0,
+                                                                 low_open=True))
+        object.__setattr__(self, "shake_cycles", check_int("shake_cycles", self.shake_cycles, low=1))
+        check_choice("gravity", self.gravity, ("approach", "off", "world"))
+        if self.contact_solref is not None:
+            object.__setattr__(self, "contact_solref", tuple(float(v) for v in check_vector(
+                "contact_solref", self.contact_solref, 2, low=0.0, low_open=True)))
+        if self.contact_solimp is not None:
+            solimp = tuple(float(v) for v in check_vector("contact_solimp", self.contact_solimp, 5, low=0.0))
+            check("contact_solimp", 0 < solimp[0] <= solimp[1] < 1 and solimp[2] > 0 and 0 < solimp[3] < 1
+                  and solimp[4] >= 1, "be (dmin, dmax, width, midpoint, power) with 0 < dmin <= dmax < 1, width > 0, "
+                  "0 < midpoint < 1, power >= 1", self.contact_solimp)
+            object.__setattr__(self, "contact_solimp", solimp)
+        if self.torsional_friction is not None:
+            object.__setattr__(self, "torsional_friction", check_number("torsional_friction",
+                                                                        self.torsional_friction, low=0.0))
+
+    def to_dict(self) -> dict:
+        """Plain-data view (for configs and metadata)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
 class LiftParams:
     """Protocol, outcome thresholds and physics settings of a grasp-and-lift rollout.
 
@@ -98,7 +229,20 @@ class LiftParams:
     lift acceleration) / (2 x 0.5) = 14.8 N per jaw and the second 49 N just to hold still; measured with these
     defaults, the 1 kg box is held from 14 N on and the 3 kg box slips up to 60 N (held from 65 N). ``grip_force`` =
     30 N sits about in the geometric middle (a factor ~2 from either edge; the 2F-85 grips with 20-235 N).
+
+    ``protocol`` names the phase sequence (:data:`PROTOCOLS`): ``table`` (default; every field below but
+    ``acronym``) or ``acronym`` (its own settings in ``acronym``; of the fields below it uses the closing stop
+    (``close_speed_tol``, ``close_timeout``), ``check_interval`` and the physics). :meth:`with_protocol` switches.
     """
+
+    # -- protocol ---------------------------------------------------------------------------------------------------
+    protocol: Literal["table", "acronym"] = "table"
+    """``table``: place at the pre-grasp pose, approach, close, lift, hold (optionally shake), on a support or in
+    free space (the pipeline's protocol). ``acronym``: ACRONYM's free-space protocol, placed at the grasp with the
+    jaws open, close, shake along and about the hand's axes, label = object still between the fingers
+    (:class:`AcronymParams`)."""
+    acronym: AcronymParams = field(default_factory=AcronymParams)
+    """Settings of the ``acronym`` protocol (ignored by ``table``)."""
 
     # -- approach ---------------------------------------------------------------------------------------------------
     approach_distance: float = 0.05
@@ -190,6 +334,8 @@ class LiftParams:
     """``"implicitfast"`` (implicit in the stiff jaw damping), ``"implicit"``, ``"euler"`` or ``"rk4"``."""
 
     def __post_init__(self) -> None:
+        check_choice("protocol", self.protocol, PROTOCOLS)
+        check_instance("acronym", self.acronym, AcronymParams)
         for key in ("approach_distance", "width_margin", "lift_height", "hold_time", "shake_amplitude",
                     "shake_angle", "max_target_shift", "max_target_turn", "slip_tolerance",
                     "slip_rotation_tolerance"):
@@ -217,9 +363,15 @@ class LiftParams:
         return PhysicsOptions(timestep=self.timestep, cone=self.cone, impratio=self.impratio,
                               integrator=self.integrator, gravity=tuple(float(g) for g in gravity))
 
+    def with_protocol(self, protocol: str) -> LiftParams:
+        """A copy with ``protocol`` set (the other settings, the ``acronym`` section included, are kept)."""
+        check_choice("protocol", protocol, PROTOCOLS)
+        return dataclasses.replace(self, protocol=protocol)
+
     def to_dict(self) -> dict:
         """Plain-data view (for configs and metadata)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return {f.name: (getattr(self, f.name).to_dict() if f.name == "acronym" else getattr(self, f.name))
+                for f in fields(self)}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -267,9 +419,24 @@ class RolloutResult:
     """``(k,) float64`` normal force (N) of each contact (``mj_contactForce``), >= 0."""
     contact_fingers: np.ndarray
     """``(k,) int8`` which jaw made each contact: 0 left (on the TCP's -x side), 1 right (+x side)."""
+    motion_closing_linear: float = math.nan
+    """ACRONYM's ``object_motion_during_closing_linear``: displacement (m) of the target's centre of mass, world
+    frame, from the start to the end of closing (the hand stands still meanwhile); NaN when closing was not
+    reached."""
+    motion_closing_angular: float = math.nan
+    """ACRONYM's ``object_motion_during_closing_angular``: rotation angle (rad) of the target over the same span."""
+    motion_shaking_linear: float = math.nan
+    """ACRONYM's ``object_motion_during_shaking_linear``: displacement (m) of the target's centre of mass, world
+    frame, from the start of the shake to the end of the rollout (the hand is back at its pose when the shake
+    ends; a rollout stopped early measures to where it stopped); NaN when no shake ran."""
+    motion_shaking_angular: float = math.nan
+    """ACRONYM's ``object_motion_during_shaking_angular``: rotation angle (rad) of the target over the same span."""
+    target_pose_closed: np.ndarray = field(default_factory=lambda: np.full((4, 4), math.nan))
+    """``(4, 4) float64`` world pose of the target body's frame (a scene object's mesh frame) at the end of closing,
+    when the contacts were recorded (they map to the object frame exactly with it); NaN before closing ended."""
 
     def __post_init__(self) -> None:
-        for key in ("contact_points", "contact_normals", "contact_forces", "contact_fingers"):
+        for key in ("contact_points", "contact_normals", "contact_forces", "contact_fingers", "target_pose_closed"):
             getattr(self, key).setflags(write=False)
 
     @property
@@ -411,6 +578,21 @@ class LiftSimulator:
     Collisions after the approach (a lifted object brushing a neighbour, a finger touching the table while closing)
     are not labels of their own: they count only through their effect on the grasp (3 or 4).
 
+    That is the ``table`` protocol (``params.protocol``, the default). The ``acronym`` protocol
+    (:class:`AcronymParams`, where its numbers come from) has no approach and no lift: gravity off until closing
+    ends (then along the approach axis, ``acronym.gravity``); **placement** at the grasp pose itself with the jaws
+    open to ``acronym.open_width`` (fully by default): contact with the target -> **1**, with support -> **0**, with
+    another object -> **2**; **closing** as above (at ``acronym.grip_force`` and ``acronym.closing_speed``; the
+    timeout is at least 1.25x the time to close fully), then not both jaws on the target -> **3**; **shaking**: the
+    TCP oscillates along its own z axis, then rotates about its own x axis through the TCP (``acronym.shake_*``),
+    then holds still for ``acronym.settle_time`` (phase ``holding``); at every check, neither jaw touching the
+    target -> **4** (the object has left the hand); at the end, both jaws touching the target -> **5 success**, else
+    **4**. ``lift_gain`` is NaN (nothing is lifted); ``rel_translation``/``rel_rotation`` are the object's motion in
+    the hand since closing; the ``motion_*`` fields are ACRONYM's four motion measures.
+
+    Both protocols record the object's motion during closing and during the shake (``motion_*``, world frame) and
+    its pose at the end of closing (``target_pose_closed``).
+
     Parameters
     ----------
     model
@@ -471,12 +653,23 @@ class LiftSimulator:
         damping = float(m.dof_damping[self._jaw_vadr[0]])
         self.closing_speed = 2.0 * model_force / damping if damping > 0 else math.inf
         """Width rate (m/s) of the closing jaws when nothing is in the way."""
-        self.grip_force = model_force if params.grip_force is None else params.grip_force
-        """Force (N) each jaw presses with when closed on an object."""
-        m.actuator_forcerange[self._act] = (-self.grip_force, self.grip_force)
-        if damping > 0:
-            for vadr in self._jaw_vadr:
-                m.dof_damping[vadr] = damping * self.grip_force / model_force
+        acr = params.acronym
+        self._acronym = params.protocol == "acronym"
+        if not self._acronym:
+            self.grip_force = model_force if params.grip_force is None else params.grip_force
+            """Force (N) each jaw presses with when closed on an object."""
+            m.actuator_forcerange[self._act] = (-self.grip_force, self.grip_force)
+            if damping > 0:
+                for vadr in self._jaw_vadr:
+                    m.dof_damping[vadr] = damping * self.grip_force / model_force
+        else:
+            self.grip_force = model_force if acr.grip_force is None else acr.grip_force
+            if acr.closing_speed is not None:
+                self.closing_speed = acr.closing_speed
+            m.actuator_forcerange[self._act] = (-self.grip_force, self.grip_force)
+            if damping > 0 or acr.closing_speed is not None:
+                for vadr in self._jaw_vadr:
+                    m.dof_damping[vadr] = 2.0 * self.grip_force / self.closing_speed
 
         # -- geom roles ---------------------------------------------------------------------------------------------
         gripper_root = int(m.body_rootid[self._base])
@@ -510,6 +703,15 @@ class LiftSimulator:
         self._cos_half_turn = math.cos(min(params.max_target_turn, math.pi) / 2.0)
         self._slip2 = params.slip_tolerance ** 2
         self._cos_slip = math.cos(min(params.slip_rotation_tolerance, math.pi))
+        if self._acronym:  # contact overrides of the acronym protocol, on the gripper's geoms (by role and name)
+            grip = np.flatnonzero(self._geom_is_gripper)
+            if acr.contact_solref is not None:
+                m.geom_solref[grip] = acr.contact_solref
+            if acr.contact_solimp is not None:
+                m.geom_solimp[grip] = acr.contact_solimp
+            if acr.torsional_friction is not None:
+                left, right = pad_geom_ids(m, prefix=prefix)
+                m.geom_friction[list(left) + list(right), 1] = acr.torsional_friction
 
         # -- initial state ------------------------------------------------------------------------------------------
         self.data = mujoco.MjData(m)
@@ -541,6 +743,16 @@ class LiftSimulator:
             self._shake_z = _shake_wave(params.shake_amplitude, params.shake_frequency, params.shake_cycles, dt)
             half = 0.5 * _shake_wave(params.shake_angle, params.shake_frequency, params.shake_cycles, dt)
             self._shake_qx = np.stack([np.cos(half), np.sin(half), np.zeros_like(half), np.zeros_like(half)], 1)
+        if self._acronym:
+            self._open_width = float(np.clip(self.max_width if acr.open_width is None else acr.open_width,
+                                             self.min_width, self.max_width))
+            self._shake_z = _shake_wave(acr.shake_amplitude, acr.shake_frequency, acr.shake_cycles, dt)
+            half = 0.5 * _shake_wave(acr.shake_angle, acr.shake_frequency, acr.shake_cycles, dt)
+            self._shake_qx = np.stack([np.cos(half), np.sin(half), np.zeros_like(half), np.zeros_like(half)], 1)
+            self._settle_steps = int(round(acr.settle_time / dt))
+            # From fully open to fully closed takes (open - min) / closing_speed: never stop closing before that.
+            full_close = 1.25 * (self._open_width - self.min_width) / self.closing_speed
+            self._close_max_steps = max(self._close_max_steps, math.ceil(full_close / dt - 1e-9))
         self._f6 = np.zeros(6)
         self.steps = 0
         """Steps taken by the current (or last) rollout."""
@@ -701,7 +913,8 @@ class LiftSimulator:
             ``(4, 4)`` world pose of the TCP frame at the grasp (z approach, x closing).
         width
             Pad separation (m) of the grasp (the object's width between the contacts); the jaws open to
-            ``width + params.width_margin``.
+            ``width + params.width_margin`` (``table``); ignored by ``acronym`` (the jaws open to
+            ``params.acronym.open_width``, by default fully).
         target_body
             Name of the object body to grasp, e.g. ``"obj/0_box"``.
         observer
@@ -715,14 +928,58 @@ class LiftSimulator:
         pos, quat = _pos_quat("T_tcp_world", T_tcp_world)
         width = check_number("width", width, low=0.0)
         target, roles, index = self._target_roles(target_body)
-        p = self.params
         self.steps = 0
-        R = np.asarray(T_tcp_world, dtype=float)[:3, :3]
+        if self._acronym:
+            return self._rollout_acronym(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], target, roles,
+                                         observer)
+        return self._rollout_table(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], width, target, roles,
+                                   index, observer)
+
+    def _close(self, observer) -> None:
+        """The closing phase: command ``min_width`` and step until the jaws stop or ``close_timeout``."""
+        p = self.params
+        self._ctrl[self._act] = self.min_width
+        tol = p.close_speed_tol * p.check_interval * self._dt  # width change per check interval
+        last = [self._width()]
+
+        def check_closing(phase: str) -> None:
+            w = self._width()
+            if abs(w - last[0]) < tol:
+                raise _JawsStopped
+            last[0] = w
+
+        try:
+            self._wait(self._close_max_steps, "closing", check_closing, observer)
+        except _JawsStopped:
+            pass
+
+    def _mark(self, target: int) -> tuple[np.ndarray, np.ndarray]:
+        """The target's centre of mass (3,) and rotation (3, 3), world frame, now (copies)."""
+        return self._xipos[target].copy(), self._xmat[target].reshape(3, 3).copy()
+
+    def _motion(self, target: int, mark: tuple[np.ndarray, np.ndarray]) -> tuple[float, float]:
+        """Displacement (m) and rotation angle (rad) of the target, world frame, since ``mark``."""
+        d = self._xipos[target] - mark[0]
+        return math.sqrt(float(d @ d)), _angle(mark[1], self._xmat[target].reshape(3, 3))
+
+    def _body_pose(self, body: int) -> np.ndarray:
+        """(4, 4) world pose of ``body``'s frame now."""
+        T = np.eye(4)
+        T[:3, :3] = self._xmat[body].reshape(3, 3)
+        T[:3, 3] = self._xpos[body]
+        return T
+
+    def _rollout_table(self, pos, quat, R, width, target, roles, index, observer) -> RolloutResult:
+        """The ``table`` protocol (class docstring)."""
+        p = self.params
         z_axis = R[:, 2].copy()
         open_width = float(jaw_opening(width, p.width_margin, self.min_width, self.max_width))
         pre = pos - p.approach_distance * z_axis
         nan = math.nan
         closed_width = lift_gain = rel_t = rel_r = nan
+        motion_closing = motion_shaking = (nan, nan)
+        pose_closed = np.full((4, 4), nan)
+        shake_mark = None
         contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
         self._gravity_view[:] = 0.0 if p.gravity_until_closed else self._gravity
         try:
@@ -746,21 +1003,11 @@ class LiftSimulator:
             # 2. approach
             self._move(pre + self._approach_s[:, None] * z_axis, None, "approach", check_approach, observer)
             # 3. closing
-            self._ctrl[self._act] = self.min_width
-            tol = p.close_speed_tol * p.check_interval * self._dt  # width change per check interval
-            last = [self._width()]
-
-            def check_closing(phase: str) -> None:
-                w = self._width()
-                if abs(w - last[0]) < tol:
-                    raise _JawsStopped
-                last[0] = w
-
-            try:
-                self._wait(self._close_max_steps, "closing", check_closing, observer)
-            except _JawsStopped:
-                pass
+            close_mark = self._mark(target)
+            self._close(observer)
             closed_width = self._width()
+            motion_closing = self._motion(target, close_mark)
+            pose_closed = self._body_pose(target)
             contacts = self._jaw_contacts(roles)
             if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
                 raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
@@ -776,6 +1023,7 @@ class LiftSimulator:
             self._move(pos + self._lift_offsets, None, "lifting", check_slip, observer)
             self._wait(self._hold_steps, "holding", check_slip, observer)
             if p.shake:
+                shake_mark = self._mark(target)
                 top = pos + self._lift_offsets[-1]
                 shake_pos = np.repeat(top[None], len(self._shake_z), axis=0)
                 shake_pos[:, 2] += self._shake_z
@@ -795,8 +1043,87 @@ class LiftSimulator:
             rel_t = math.sqrt(float((rel_p - rel_p0) @ (rel_p - rel_p0)))
             rel_r = _angle(rel_R0, rel_R)
             lift_gain = float(self._xipos[target][2]) - z_obj0
+        if shake_mark is not None:
+            motion_shaking = self._motion(target, shake_mark)
         return RolloutResult(
             code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
             sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=lift_gain,
             rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
-            contact_forces=contacts[2], contact_fingers=contacts[3])
+            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
+            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
+            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)
+
+    def _jaws_on(self, roles: np.ndarray) -> tuple[bool, bool]:
+        """(left jaw touches the target, right jaw touches the target) now; no contact forces (cheap)."""
+        if self.data.ncon == 0:
+            return False, False
+        geom = self.data.contact.geom
+        side = self._geom_side[geom]
+        on_target = roles[geom] == _TARGET
+        hits = np.concatenate([side[:, 0][on_target[:, 1]], side[:, 1][on_target[:, 0]]])
+        return bool(np.any(hits == _LEFT)), bool(np.any(hits == _RIGHT))
+
+    def _rollout_acronym(self, pos, quat, R, target, roles, observer) -> RolloutResult:
+        """The ``acronym`` protocol (:class:`AcronymParams`, class docstring)."""
+        acr = self.params.acronym
+        z_axis = R[:, 2].copy()
+        nan = math.nan
+        closed_width = rel_t = rel_r = nan
+        motion_closing = motion_shaking = (nan, nan)
+        pose_closed = np.full((4, 4), nan)
+        shake_mark = rel0 = None
+        contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
+        self._gravity_view[:] = 0.0
+        try:
+            # 1. placement: at the grasp pose, jaws open; the open hand must not touch anything
+            self._place(pos, quat, self._open_width)
+            if observer is not None:
+                observer("placement", 0)
+            code = self._contact_code(roles)
+            if code is not None:
+                raise _Decided(code, "placement")
+            # 2. closing
+            close_mark = self._mark(target)
+            self._close(observer)
+            closed_width = self._width()
+            motion_closing = self._motion(target, close_mark)
+            pose_closed = self._body_pose(target)
+            contacts = self._jaw_contacts(roles)
+            if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
+                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
+            if acr.gravity == "world":
+                self._gravity_view[:] = self._gravity
+            elif acr.gravity == "approach":
+                self._gravity_view[:] = math.sqrt(float(self._gravity @ self._gravity)) * z_axis
+            rel0 = self._relative(target)
+
+            def check_held(phase: str) -> None:
+                if not any(self._jaws_on(roles)):
+                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
+
+            # 3. shake: along the approach axis, then about the closing axis through the TCP; then settle
+            shake_mark = self._mark(target)
+            self._move(pos + self._shake_z[:, None] * z_axis, None, "shaking", check_held, observer)
+            self._move(np.repeat(pos[None], len(self._shake_qx), axis=0), _quat_mul(quat, self._shake_qx),
+                       "shaking", check_held, observer)
+            self._wait(self._settle_steps, "holding", check_held, observer)
+            if not all(self._jaws_on(roles)):
+                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
+            code, phase = Outcome.SUCCESS, "end"
+        except _Decided as decided:
+            code, phase = Outcome(decided.code), decided.phase
+        finally:
+            self._gravity_view[:] = self._gravity
+        if rel0 is not None:
+            rel_p, rel_R = self._relative(target)
+            rel_t = math.sqrt(float((rel_p - rel0[0]) @ (rel_p - rel0[0])))
+            rel_r = _angle(rel0[1], rel_R)
+        if shake_mark is not None:
+            motion_shaking = self._motion(target, shake_mark)
+        return RolloutResult(
+            code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
+            sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=nan,
+            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
+            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
+            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
+            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)

@@ -42,11 +42,11 @@ from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal
 from graspgen.io.arrow import fixed_list
 from graspgen.io.objects import ObjectRecord
 from graspgen.io.scenes import read_scene
-from graspgen.sim.grippers import GRIPPERS, load_gripper
+from graspgen.sim.grippers import load_gripper
 from graspgen.sim.prefilter import CollisionChecker, PrefilterParams
 from graspgen.sim.scene_model import object_body_name
 from graspgen.sim.scenes import scene_spec
-from graspgen.validation import check, check_choice
+from graspgen.validation import check
 
 PREFILTER_NAMES = {-1: "free", 0: "collision_with_ground", 1: "collision_with_target", 2: "collision_with_clutter"}
 
@@ -56,7 +56,8 @@ class GraspsParams:
     """Settings of the ``grasps`` stage (config section ``grasps``)."""
 
     gripper: str = "robotiq_2f85"
-    """Gripper model: robotiq_2f85, panda or box_jaw."""
+    """Gripper model: robotiq_2f85, panda or box_jaw, or the path of a gripper file (.yaml, .yml, .json; relative
+    to the current folder; see graspgen.sim.grippers.read_gripper). The grasp table's gripper column holds it."""
     targets: tuple[str, ...] = ()
     """Object names to grasp; empty grasps every object of every scene."""
     max_per_object: int = 48
@@ -69,7 +70,9 @@ class GraspsParams:
     """Static collision check along the approach."""
 
     def __post_init__(self) -> None:
-        check_choice("gripper", self.gripper, sorted(GRIPPERS))
+        check("gripper", isinstance(self.gripper, str) and bool(self.gripper),
+              "be a gripper name or the path of a gripper file", self.gripper)
+        load_gripper(self.gripper)  # unknown name: lists the bundled ones; bad file: names it and what is wrong
         check("max_per_object", self.max_per_object > 0, "be > 0", self.max_per_object)
         check(
             "prefilter.width_margin",

@@ -49,8 +49,10 @@ Headless rendering
 Shadows and reflections are off; lighting is a headlight plus one directional light. MuJoCo picks its OpenGL
 backend from the environment variable ``MUJOCO_GL`` when it is first imported:
 ``egl`` (needs ``libEGL`` and Mesa: Debian/Ubuntu ``libegl1 libgl1-mesa-dri``; Mesa's llvmpipe renders on the
-CPU, no GPU needed) or ``osmesa`` (``libosmesa6``). This module sets ``MUJOCO_GL=egl`` when it is unset and
-imported before mujoco; ``gen`` does the same. Image bytes are deterministic for one GL implementation (Mesa
+CPU, no GPU needed) or ``osmesa`` (``libosmesa6``). :func:`graspgen.sim.gl.select_backend` chooses it before
+this module imports mujoco (``egl`` when libEGL loads, else ``osmesa`` when libOSMesa loads, else nothing), so
+importing this module never needs OpenGL; :class:`SceneRenderer` raises :class:`RenderError` in one line when
+no back end can render. Image bytes are deterministic for one GL implementation (Mesa
 llvmpipe here: the same view renders to the same bytes whatever was rendered before, in any process); another
 driver (a GPU's EGL) may differ in the last bit of some pixels, and so in the shard bytes.
 """
@@ -63,8 +65,9 @@ import os
 from collections.abc import Sequence
 from typing import Any, Literal
 
-# The GL backend is chosen when mujoco first loads its rendering module: set a headless default before that.
-os.environ.setdefault("MUJOCO_GL", "egl")
+from graspgen.sim.gl import HOW_TO_FIX, backend_in_use, render_problem, select_backend
+
+select_backend()  # MuJoCo reads MUJOCO_GL once, at its first import: choose a headless back end before that.
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
@@ -792,13 +795,8 @@ def depth_noise(
 def _gl_backend_note() -> str:
     """What MUJOCO_GL says and which backend mujoco actually loaded (it reads the variable once, at import)."""
     env = os.environ.get("MUJOCO_GL")
-    try:
-        from mujoco.rendering.classic import gl_context
-
-        used = getattr(gl_context, "_MUJOCO_GL", None)
-    except Exception:  # noqa: BLE001 - only for the message
-        used = None
-    if used is not None and used != (env or "").lower().strip():
+    used = backend_in_use()
+    if used != (env or "").lower().strip():
         return (
             f"MUJOCO_GL={env!r} now, but mujoco was imported when it was {used or 'unset'!r} and uses that "
             "backend: set MUJOCO_GL in the environment before Python starts"
@@ -840,16 +838,18 @@ class SceneRenderer:
     def __init__(self, model: mujoco.MjModel, width: int, height: int):
         self.model = model
         self.width, self.height = int(width), int(height)
+        self._renderer = None
+        problem = render_problem()  # no usable back end: say so before mujoco tries (it may crash without one)
+        if problem is not None:
+            raise RenderError(problem)
         try:
             self._renderer = mujoco.Renderer(model, self.height, self.width)
         except ValueError:
             raise  # image larger than the model's offscreen buffer: a programming error, keep MuJoCo's message
         except Exception as exc:  # noqa: BLE001 - GL failures surface as many types (ImportError, FatalError...)
+            detail = " ".join(f"{type(exc).__name__}: {exc}".split())  # one line
             raise RenderError(
-                f"cannot create an offscreen OpenGL context ({_gl_backend_note()}): "
-                f"{type(exc).__name__}: {exc}. Set MUJOCO_GL=egl (needs libEGL and Mesa, e.g. apt install libegl1 "
-                "libgl1-mesa-dri) or MUJOCO_GL=osmesa (apt install libosmesa6) before Python imports mujoco, or set "
-                "scenes.cameras.render: false to make scenes without images."
+                f"cannot create an offscreen OpenGL context ({_gl_backend_note()}): {detail}; {HOW_TO_FIX}"
             ) from exc
         scene = self._renderer.scene
         scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False

@@ -57,13 +57,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
-# MuJoCo picks its GL backend at its first import: default to headless EGL (see graspgen.sim.scene_model).
-os.environ.setdefault("MUJOCO_GL", "egl")
+from graspgen.sim.gl import require_rendering, select_backend
+
+select_backend()  # MuJoCo picks its GL backend at its first import: choose a headless one (graspgen.sim.gl).
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
@@ -73,7 +73,7 @@ from graspgen.errors import InputError, SettingsError, SimulationError  # noqa: 
 from graspgen.io.objects import ObjectRecord  # noqa: E402
 from graspgen.io.scenes import SceneRecord  # noqa: E402
 from graspgen.sim.grippers import PhysicsOptions  # noqa: E402
-from graspgen.sim.scene_model import (
+from graspgen.sim.scene_model import (  # noqa: E402
     SEG_GROUND,
     Camera,
     SceneRenderer,
@@ -92,7 +92,7 @@ from graspgen.sim.scene_model import (
     support_boxes,
     transform_points,
 )
-from graspgen.validation import check, check_range  # noqa: E402
+from graspgen.validation import check, check_range, settings_dict  # noqa: E402
 
 _FALL_DEPTH = 0.005
 """An object whose centre of mass ends below the support's top surface by more than this (m) has fallen off."""
@@ -488,6 +488,13 @@ class MadeScene:
     meta: dict[str, Any]
 
 
+def check_rendering(params: ScenesParams) -> None:
+    """Raise :class:`~graspgen.errors.RenderError` (one line: the missing library and the ways out) when ``params``
+    ask for images and no OpenGL back end can render in this process; cheap, so call it before any work."""
+    if params.cameras.render and params.cameras.num_views > 0:
+        require_rendering()
+
+
 def make_scene(
     scene_id: str,
     params: ScenesParams,
@@ -516,6 +523,7 @@ def make_scene(
     t0 = time.perf_counter()
     if not library:
         raise InputError(f"{scene_id}: no objects to build the scene from")
+    check_rendering(params)  # before placing and settling: without OpenGL that work would be thrown away
     records: dict[str, ObjectRecord] = {}
     counts = _Counts()
     cams = params.cameras
@@ -583,7 +591,7 @@ def make_scene(
             "object_keys": [object_key(p.name) for p in placements],
             "counts": dataclasses.asdict(counts),
             "settle_time": settle_time,
-            "support": dataclasses.asdict(params.support),
+            "support": settings_dict(params.support),
             "conventions": {
                 "world": "z up, metres; support top surface z = 0; ground z = -support.height",
                 "poses": "object mesh frame (as in its object shard) to world",
@@ -591,7 +599,7 @@ def make_scene(
                 "depth": "float32 metres along the optical axis; 0 = no return",
                 "ids": "object scene index 0..n-1; -1 nothing, -2 support, -3 ground",
             },
-            "params": dataclasses.asdict(params),
+            "params": settings_dict(params),
         },
         "objects": {
             "poses": poses.astype(np.float64),

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-# Rendering needs a headless GL backend; MuJoCo reads the variable when first imported.
-os.environ.setdefault("MUJOCO_GL", "egl")
+from graspgen.sim.gl import select_backend
+
+select_backend()  # Rendering needs a headless GL backend; MuJoCo reads MUJOCO_GL when first imported.
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402

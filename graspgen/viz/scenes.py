@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import colorsys
-import os
 from collections.abc import Sequence
 
-os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
+import graspgen.sim.gl  # noqa: F401 - imported first: chooses MUJOCO_GL before anything imports mujoco
 from graspgen.io.scenes import SceneRecord  # noqa: E402
 from graspgen.sim.scene_model import (
     SEG_BACKGROUND,
