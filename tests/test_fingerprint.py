@@ -140,3 +140,24 @@ def test_the_seed_key_leaves_code_and_packages_out():
     other_params = key_parts(stage="s", version=1, params={"a": 2}, task_id="t", payload={}, upstream={},
                              input_hashes={})
     assert seed_key(other_params, {}) != seed_key(base, {})
+
+
+def test_a_package_upgrade_makes_the_stages_that_import_it_stale_and_says_so(tmp_path, monkeypatch):
+    from toy_stages import TOY
+
+    from pipeline.config import load_config
+    from pipeline.scheduler import run_pipeline, status
+
+    cfg = load_config(TOY.schema, None, [f"run.out={tmp_path / 'o'}", "run.jobs=1"])
+    run_pipeline(TOY, cfg)
+    assert all(s.state == "done" for s in status(TOY, cfg))
+    real = fingerprint._distribution_versions
+    monkeypatch.setattr(fingerprint, "_distribution_versions",
+                        lambda top: {"numpy": "99.0"} if top == "numpy" else real(top))
+    stage_fingerprint.cache_clear()
+    import numpy
+
+    rows = {s.stage: s for s in status(TOY, cfg)}
+    assert rows["numbers"].state == "stale"
+    assert f"4 task(s): package: numpy {numpy.__version__} -> 99.0" in rows["numbers"].reasons
+    stage_fingerprint.cache_clear()
