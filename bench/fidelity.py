@@ -319,7 +319,10 @@ DEFAULTS = {"shake_amplitude (m)": 0.015, "shake_frequency (Hz)": 4.0, "shake_an
 
 def sweep(cases: list[Case], args) -> list[dict]:
     out = []
+    only = [w for w in args.sweep_only.split(",") if w]
     for name, values, make in sweep_settings():
+        if only and not any(w in name for w in only):
+            continue
         for v in values:
             lift, friction = make(v)
             t0 = time.perf_counter()
@@ -390,6 +393,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="evenly spaced grasps per object (default: all)")
     ap.add_argument("--protocols", default="table,acronym", help="comma-separated: table, acronym")
     ap.add_argument("--sweep", action="store_true", help="sensitivity of pooled agreement/kappa (acronym protocol)")
+    ap.add_argument("--sweep-only", default="", help="comma-separated words: sweep only parameters naming one")
     ap.add_argument("--speed", action="store_true", help="acronym rollouts/s on the calibration mug, one core")
     ap.add_argument("--robustness", type=int, default=0, help="perturbed copies per success for the robustness AUC")
     ap.add_argument("--gripper", default="panda")

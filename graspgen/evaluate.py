@@ -237,6 +237,7 @@ class _World:
     obj: PlacedObject
     support: SupportParams | None
     gripper: str
+    """A bundled gripper name or the path of a gripper file (what :func:`load_gripper` takes)."""
     lift: LiftParams
 
 
@@ -374,7 +375,7 @@ def evaluate_grasps(
         obj = dataclasses.replace(obj, pose=_settled_pose(
             dataclasses.replace(obj, pose=prepared.stable_transforms[0]), support, lift))
     T_world = obj.pose @ T
-    world = _World(obj=obj, support=support, gripper=spec.name, lift=lift)
+    world = _World(obj=obj, support=support, gripper=str(gripper), lift=lift)  # a name or a file path
 
     jobs = (os.cpu_count() or 1) if jobs <= 0 else int(jobs)
     chunks = [c for c in np.array_split(np.arange(n), max(1, min(jobs, n))) if len(c)]

@@ -75,9 +75,10 @@ def check_writable(path: Path, what: str = "output folder", *, file: bool = Fals
     that stays (a probe file is made and removed at once)."""
     path = existing = Path(path)
     try:
-        existing = next(p for p in (path, *path.parents) if p.exists())
         if file and path.is_dir():
             raise ConfigError(f"{path}: is a folder; the {what} must name a file, not a folder")
+        start = path.parent if file else path  # an existing output file is overwritten: its folder must be writable
+        existing = next(p for p in (start, *start.parents) if p.exists())
         if not existing.is_dir():
             where = "is a file" if existing == path else f"{existing} is a file"
             raise ConfigError(f"{path}: {where}, not a folder; the {what} cannot be made there")

@@ -8,6 +8,7 @@ from toy_stages import TOY
 from typer.testing import CliRunner
 
 from pipeline.cli import build_app
+from pipeline.errors import ConfigError
 
 app = build_app(TOY)
 runner = CliRunner()
@@ -348,3 +349,16 @@ def test_clean_without_a_stage_removes_the_whole_output_folder(tmp_path):
     assert (out / "shards" / "config.yaml").is_file() and (out / "published" / "total.txt").is_file()
     assert invoke("clean", "--out", out).exit_code == 0
     assert not out.exists()
+
+
+def test_an_existing_output_file_may_be_overwritten(tmp_path):
+    from pipeline.cli import check_writable
+
+    existing = tmp_path / "labels.parquet"
+    existing.write_text("old")
+    check_writable(existing, "output file", file=True)  # no error: it is replaced
+    assert existing.read_text() == "old"  # and nothing written yet
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(ConfigError, match="a_file is a file, not a folder"):
+        check_writable(blocker / "labels.parquet", "output file", file=True)

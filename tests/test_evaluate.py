@@ -3,7 +3,9 @@ simulator, in free space and on a table; input order, determinism, error message
 
 from __future__ import annotations
 
+import dataclasses
 import json
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -235,3 +237,18 @@ def test_evaluate_grasps_protocol_argument_and_the_table_default(acronym_file, t
     assert np.isnan(table.column("motion_shaking_linear").to_numpy()).all()  # no shake by default
     with pytest.raises(ValueError, match="free-space protocol"):
         evaluate_grasps(mesh, 0.001, T, None, "panda", params, protocol="acronym", free_space=False)
+
+
+def test_a_gripper_file_can_be_given_by_path(tmp_path):
+    from graspgen.sim.grippers import load_gripper, write_gripper
+
+    path = tmp_path / "my_panda.yaml"
+    write_gripper(dataclasses.replace(load_gripper("panda"), name="my_panda"), path)  # a name nobody registered
+    T = np.tile(np.diag([1.0, -1.0, -1.0, 1.0]), (2, 1, 1))
+    T[:, 2, 3] = [0.11, 0.14]
+    box = Path(__file__).resolve().parents[1] / "assets" / "objects" / "box.obj"
+    by_path = evaluate_grasps(box, 1.0, T, None, str(path), jobs=2,
+                              protocol="table")
+    by_name = evaluate_grasps(box, 1.0, T, None, "panda", jobs=2,
+                              protocol="table")
+    assert by_path.column("outcome").to_pylist() == by_name.column("outcome").to_pylist() == [5, 3]

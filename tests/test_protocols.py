@@ -155,6 +155,9 @@ def test_acronym_settings_change_the_simulation_as_documented():
     assert sim2.closing_speed == 0.05
     left, right = G.pad_geom_ids(model)
     assert (sim2.model.geom_friction[list(left + right), 1] == 0.0).all()
+    assert (sim2.model.geom_condim[list(left + right)] == 3).all()  # point contacts
+    box = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "obj/0_box/geom")
+    assert sim2.model.geom_friction[box, 1] == 0.0 and model.geom_friction[box, 1] == 0.005
     grip = [g for g in range(model.ngeom) if (mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "")
             .startswith("gripper/")]
     np.testing.assert_array_equal(sim2.model.geom_solref[grip], [[0.01, 1.0]] * len(grip))

@@ -189,8 +189,9 @@ class AcronymParams:
     """Gripper contact impedance (MuJoCo solimp: dmin, dmax, width m, midpoint, power); null keeps the gripper
     model's (0.95, 0.99, 0.001, 0.5, 2)."""
     torsional_friction: float | None = None
-    """Torsional friction (m) of the pads (their contacts' floor, :mod:`graspgen.sim.grippers`); null keeps the
-    gripper model's (0.005 m). 0 makes the pad contacts points that cannot resist rotation about their line."""
+    """Torsional friction coefficient (m) of the pad contacts (written into the pads and, as MuJoCo takes the larger
+    of two geoms' values, into every other geom); null keeps the models' (pads and objects 0.005 m). 0 also makes
+    the pads condim 3: point contacts that cannot resist rotation about their line."""
 
     def __post_init__(self) -> None:
         for key in ("open_width", "grip_force", "closing_speed"):
@@ -710,8 +711,13 @@ class LiftSimulator:
             if acr.contact_solimp is not None:
                 m.geom_solimp[grip] = acr.contact_solimp
             if acr.torsional_friction is not None:
-                left, right = pad_geom_ids(m, prefix=prefix)
-                m.geom_friction[list(left) + list(right), 1] = acr.torsional_friction
+                # MuJoCo takes the larger coefficient of the two geoms (and the larger condim): set it on the pads
+                # and on every other geom, so the pad contacts get exactly this value; 0 makes them condim 3.
+                pads = list(sum(pad_geom_ids(m, prefix=prefix), ()))
+                m.geom_friction[pads, 1] = acr.torsional_friction
+                m.geom_friction[np.flatnonzero(~self._geom_is_gripper), 1] = acr.torsional_friction
+                if acr.torsional_friction == 0.0:
+                    m.geom_condim[pads] = np.minimum(m.geom_condim[pads], 3)
 
         # -- initial state ------------------------------------------------------------------------------------------
         self.data = mujoco.MjData(m)
