@@ -72,14 +72,18 @@ robustness_n             int32            perturbed copies rolled out (0 unless 
 robustness_successes     int32            copies that succeeded
 robustness               float64          success fraction of the copies; NaN when robustness_n = 0
 robustness_lo, _hi       float64          Wilson score 95% interval of it
+grip_robustness          float64          successes among the copies that reached the grip (codes 3-5); NaN if none
+grip_robustness_lo, _hi  float64          Wilson score 95% interval of it
 pfc                      float64          probability of force closure: copies with epsilon > delta
-copy_outcomes            list<int8>       outcome of each copy; copy_epsilon list<float64>: epsilon of each copy
+copy_outcomes            list<int8>       outcome (failure cause) of each copy; copy_epsilon list<float64>: epsilon
 radius_x/_y/_z, _rx/...  float64          robustness radius along / about the TCP axes, m / rad (NaN when off)
 epsilon                  float64          Ferrari-Canny epsilon (unit-free); 0 when not in force closure
 contact_source           string           where epsilon's contacts came from: rollout, raycast or none
 epsilon_contacts         int32            contact points epsilon was computed from
 epsilon_friction         float64          Coulomb coefficient of epsilon's friction cones
 min_closure_friction     float64          smallest tested friction with force closure; NaN when none
+pfc_contact              float64          copies of the contacts under contact noise with epsilon > delta (fraction)
+epsilon_robust           float64          mean epsilon over those copies (Dex-Net-style robust epsilon)
 torque_scale             float64          epsilon's torque scale (object radius about its centre of mass), m
 source_key               string           the key of the scene's rollouts shard (its provenance)
 =======================  ===============  ===========================================================================

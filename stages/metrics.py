@@ -1,6 +1,8 @@
-"""Stage 6, ``metrics``: Ferrari-Canny epsilon, force closure and minimum closure friction of every grasp.
+"""Stage 6, ``metrics``: Ferrari-Canny epsilon, force closure, minimum closure friction, and the probability of
+force closure and robust epsilon under contact noise (``pfc_contact``, ``epsilon_robust``) of every grasp.
 
-One task per scene; the work is :func:`graspgen.quality.epsilon.scene_metrics` (see there for the columns).
+One task per scene; the work is :func:`graspgen.quality.epsilon.scene_metrics` (see there for the columns). The
+task's ``rng`` is the contact noise's only source.
 """
 
 from __future__ import annotations
@@ -45,12 +47,14 @@ class MetricsStage(GraspStage):
         rollouts = pq.read_table(upstream.path("rollouts", task.id))
         scene = read_scene(upstream.path("scenes", task.id))
         records = {n: read_object(upstream.path("objects", n)) for n in sorted(set(scene.object_names))}
-        table = scene_metrics(grasps, rollouts, scene, records, params)
+        table = scene_metrics(grasps, rollouts, scene, records, params, rng)
         write_parquet(out, table)
         sources = table.column("contact_source").to_pylist()
         eps = table.column("epsilon").to_numpy()
+        pfc = table.column("pfc_contact").to_numpy()
         return {
             "grasps": len(table),
             "contact_source": {s: sources.count(s) for s in CONTACT_SOURCES},
             "force_closure": int((eps > 0).sum()),
+            "mean_pfc_contact": round(float(pfc.mean()), 6) if len(pfc) else None,
         }

@@ -1,7 +1,9 @@
-"""Stage 5, ``robustness``: every successful grasp rolled out again from perturbed poses.
+"""Stage 5, ``robustness``: every successful grasp rolled out again from perturbed copies (TCP pose, optionally the
+object's planar pose, the object's mass, centre of mass and friction).
 
 One task per scene; the work is :func:`graspgen.quality.robustness.scene_robustness` (see there for what is
-perturbed and the columns).
+perturbed and the columns: ``robustness``, and ``grip_robustness`` over the copies not stopped by a collision).
+Version 2: 14 draws per copy (mass, centre of mass, friction), the ``grip_robustness`` columns.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from stages.base import GraspStage
 class RobustnessStage(GraspStage):
     name = "robustness"
     inputs = ("rollouts", "grasps", "scenes", "objects")
-    version = 1
+    version = 2
     ext = "parquet"
 
     def params(self, config: Any) -> RobustnessTaskParams:

@@ -221,6 +221,27 @@ def test_rows_recomputed_by_hand(pipeline_run):
     assert checked == {"rollout", "raycast"}
 
 
+def test_contact_noise_columns(pipeline_run, tmp_path):
+    # default noise: labels in range, 0 without contacts; zero noise: the nominal epsilon and closure exactly
+    for m in tables(pipeline_run / "out", "metrics").values():
+        pfc, robust = m.column("pfc_contact").to_numpy(), m.column("epsilon_robust").to_numpy()
+        none = np.array(m.column("contact_source").to_pylist()) == "none"
+        assert np.all((pfc >= 0) & (pfc <= 1)) and np.all(robust >= 0)
+        assert np.all(pfc[none] == 0) and np.all(robust[none] == 0)
+    quiet = ["metrics.contact_position_sigma=0", "metrics.contact_normal_sigma=0", "metrics.friction_sigma=0"]
+    reports = run_pipeline(PROJECT, small(tmp_path / "q", pipeline_run / "cache", *quiet), ["metrics"])
+    assert all(r.failed == 0 for r in reports)
+    noisy = tables(pipeline_run / "out", "metrics")
+    for sid, m in tables(tmp_path / "q", "metrics").items():
+        eps = m.column("epsilon").to_numpy()
+        assert np.array_equal(m.column("epsilon_robust").to_numpy(), eps)
+        assert np.array_equal(m.column("pfc_contact").to_numpy(), (eps > 0).astype(float))
+        for name in SCHEMA.names[:8]:  # the nominal columns do not depend on the noise
+            assert list(map(repr, m.column(name).to_pylist())) == list(map(repr, noisy[sid].column(name).to_pylist()))
+    with pytest.raises(ConfigError, match="metrics.num_contact_samples: must be >= 1"):
+        small(tmp_path, pipeline_run / "cache", "metrics.num_contact_samples=0")
+
+
 def test_same_key_same_bytes_and_independent_of_workers(pipeline_run, tmp_path):
     cache = pipeline_run / "cache"
     again = run_pipeline(PROJECT, small(tmp_path / "again", cache), ["metrics"])

@@ -102,8 +102,12 @@ COLUMN_DOCS: dict[str, str] = {
     "robustness": "success fraction of the perturbed copies, in [0, 1]; NaN when robustness_n = 0",
     "robustness_lo": "Wilson score 95% interval of robustness, lower end",
     "robustness_hi": "Wilson score 95% interval of robustness, upper end",
+    "grip_robustness": "success fraction of the perturbed copies that reached the grip (outcome 3-5: not stopped by "
+    "a collision during placement or approach), in [0, 1]; NaN when none did",
+    "grip_robustness_lo": "Wilson score 95% interval of grip_robustness, lower end",
+    "grip_robustness_hi": "Wilson score 95% interval of grip_robustness, upper end",
     "pfc": "probability of force closure: fraction of the copies with epsilon > delta; NaN when robustness_n = 0",
-    "copy_outcomes": "outcome code of each perturbed copy",
+    "copy_outcomes": "outcome code of each perturbed copy (its failure cause)",
     "copy_epsilon": "epsilon of each perturbed copy",
     "radius_x": "robustness radius along the TCP x axis, m (NaN when off)",
     "radius_y": "robustness radius along the TCP y axis, m (NaN when off)",
@@ -117,6 +121,10 @@ COLUMN_DOCS: dict[str, str] = {
     "epsilon_friction": "Coulomb coefficient of epsilon's friction cones",
     "min_closure_friction": "smallest tested friction coefficient with force closure; NaN when none",
     "torque_scale": "epsilon's torque scale: the object's largest vertex distance from its centre of mass, m",
+    "pfc_contact": "probability of force closure under contact noise: fraction of the metrics stage's perturbed "
+    "contact sets (pad shift, normal tilt, friction) with epsilon > delta; 0 when contact_source is none",
+    "epsilon_robust": "robust epsilon: mean epsilon over the metrics stage's perturbed contact sets, unit-free; "
+    "0 when contact_source is none",
     "source_key": "content key of the scene's rollouts shard (provenance)",
 }
 """Description of each known column (stored in the Parquet field metadata and the card)."""
@@ -154,6 +162,11 @@ LABEL_TYPES = {
     "pfc": pa.float64(),
     "epsilon": pa.float64(),
     "min_closure_friction": pa.float64(),
+    "pfc_contact": pa.float64(),
+    "epsilon_robust": pa.float64(),
+    "grip_robustness": pa.float64(),
+    "grip_robustness_lo": pa.float64(),
+    "grip_robustness_hi": pa.float64(),
 }
 """Types of the label columns, checked when present."""
 

@@ -12,10 +12,23 @@ whose rollout succeeded (outcome 5), ``num_perturbations`` perturbed copies are 
   object_translation_sigma^2)`` along world x and y and a yaw ``N(0, object_rotation_sigma^2)`` about the vertical
   line through its centre of mass. Planar, so the object still rests on its support in the same stable pose. A moved
   object can start touching a neighbour; the physics resolves that and the rules may then label the copy 1 or 2.
-  Each noisy copy builds its own :class:`graspgen.sim.lift.LiftSimulator` (a copy of the compiled model, ~1 ms).
+* the target's physics: its mass (and inertia) scaled by ``exp(mass_sigma z)`` (log-normal, median 1: uniform
+  density scaling, so the centre of mass and the inertia's shape stay), its centre of mass moved by
+  ``N(0, com_sigma^2 I)`` (m, mesh frame; the inertia is kept about the new centre; off by default, see
+  :attr:`RobustnessParams.com_sigma`), and its sliding friction
+  coefficient (which governs the gripper-target contacts) drawn from ``N(mu, friction_sigma^2)`` truncated to
+  ``> 0`` (one draw, by inverse CDF). The copy's epsilon uses its own centre of mass and (unless
+  ``metrics.epsilon.friction`` fixes one) its own friction.
+
+  A copy with any object perturbation builds its own :class:`graspgen.sim.lift.LiftSimulator` (a copy of the
+  compiled model, ~1 ms); with every object sigma 0 and no ``object_noise`` the copies share the nominal model.
 
 Labels per grasp: ``robustness`` = successes / n, the fraction of copies with outcome 5 (never an average of outcome
-codes), with its Wilson score 95% interval (:func:`wilson_interval`); the epsilon of every copy (its contacts, by
+codes), with its Wilson score 95% interval (:func:`wilson_interval`); ``grip_robustness`` = successes / the copies
+that reached the grip (outcome 3-5: not stopped by a collision with the ground, the target or clutter during
+placement or approach), with its Wilson interval: how well the grasp holds when the hand gets there, apart from
+whether a misplaced hand can get there (NaN when no copy got there); every copy's outcome code
+(``copy_outcomes``, the failure cause of each copy); the epsilon of every copy (its contacts, by
 the rule of :mod:`stages.metrics`: the copy's rollout contacts when both jaws touched, taken to the object frame with
 the object's pose recorded at the end of closing, so exactly; else ray-cast closing contacts at the copy's pose
 relative to the object; the contact model of ``metrics.epsilon``); ``pfc`` = the fraction of copies with epsilon >
@@ -28,9 +41,10 @@ direction (``radius_iterations`` halvings after a first try at the maximum; a co
 the maximum). The column holds the smaller of the two directions. Bisection finds *a* boundary: where success is
 not monotone along the axis the radius is one of the edges, not necessarily the first. No randomness.
 
-Randomness: all draws for a scene are made up front from the task's generator, ``(grasps, n, 9)`` standard normals
-in grasp order (for every grasp, successful or not), so a grasp's perturbations depend only on the task key and its
-row, never on scheduling, worker count or the other grasps' outcomes.
+Randomness: all draws for a scene are made up front from the task's generator, ``(grasps, n, 14)`` standard normals
+(:data:`DRAWS_PER_COPY`, in a fixed order per copy, each drawn whether used or not) in grasp order (for every
+grasp, successful or not), so a grasp's perturbations depend only on the task key and its row, never on
+scheduling, worker count or the other grasps' outcomes.
 
 Output per scene: one Parquet table, one row per grasp of the grasps table, joined on ``(scene_id, grasp_id)``:
 
@@ -42,8 +56,11 @@ n                   int32           perturbed copies rolled out (0 unless the gr
 successes           int32           copies with outcome 5
 robustness          float64         successes / n, in [0, 1]; NaN when n = 0
 robustness_lo/_hi   float64         Wilson score 95% interval of the success rate; NaN when n = 0
+grip_robustness     float64         successes / copies with outcome 3-5 (that reached the grip); NaN when none
+grip_robustness_lo  float64         Wilson score 95% interval of grip_robustness (``_lo``, ``_hi``); NaN when
+/_hi                                none
 pfc                 float64         fraction of copies with epsilon > ``epsilon_delta``; NaN when n = 0
-copy_outcomes       list<int8>      outcome code 0-5 of each copy, n values
+copy_outcomes       list<int8>      outcome code 0-5 of each copy (its failure cause), n values
 copy_epsilon        list<float64>   epsilon of each copy, n values
 radius_x/_y/_z      float64         robustness radius along the TCP axes, m; NaN when off or n = 0
 radius_rx/_ry/_rz   float64         robustness radius about the TCP axes, rad; NaN when off or n = 0
@@ -52,8 +69,10 @@ radius_rx/_ry/_rz   float64         robustness radius about the TCP axes, rad; N
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
+from statistics import NormalDist
 from typing import Any
 
 import mujoco
@@ -72,12 +91,13 @@ from graspgen.quality.epsilon import (
     object_geometry,
 )
 from graspgen.sim.grippers import GripperSpec, load_gripper
-from graspgen.sim.lift import LiftParams, LiftSimulator, Outcome, RolloutResult
+from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, Outcome, RolloutResult
 from graspgen.sim.scene_model import object_body_name
 from graspgen.validation import check, check_int, check_number, check_transform
 
 __all__ = [
     "DRAWS_PER_COPY",
+    "GRIP_CODES",
     "RADIUS_AXES",
     "RobustnessParams",
     "RobustnessTaskParams",
@@ -86,6 +106,7 @@ __all__ = [
     "wilson_interval",
     "rotvec_to_matrix",
     "perturbed_poses",
+    "truncated_friction",
     "grasp_robustness",
     "robustness_radius",
     "scene_robustness",
@@ -94,8 +115,13 @@ __all__ = [
 RADIUS_AXES = ("x", "y", "z", "rx", "ry", "rz")
 """Axes of the robustness radius: translation along the TCP x, y, z axes, then rotation about them."""
 
-DRAWS_PER_COPY = 9
-"""Standard normals drawn per perturbed copy: TCP translation (3), TCP rotation vector (3), object x, y, yaw (3)."""
+DRAWS_PER_COPY = 14
+"""Standard normals drawn per perturbed copy, in this order: TCP translation (3), TCP rotation vector (3), object
+x, y, yaw (3), mass scale (1), centre-of-mass offset (3), friction (1). All are drawn whatever the settings."""
+
+GRIP_CODES = (Outcome.NO_CONTACT_ESTABLISHED, Outcome.SLIPPED_DURING_LIFTING, Outcome.SUCCESS)
+"""Outcome codes of copies that reached the grip (``grip_robustness``'s denominator): not stopped by a collision
+during placement or approach (codes 0-2)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,11 +141,34 @@ class RobustnessParams:
     rotation_sigma: float = math.radians(5.0)
     """Standard deviation (rad) of each component of the TCP rotation error (a rotation vector in the TCP frame)."""
     object_noise: bool = False
-    """Also move the target object at placement (planar: world x, y and yaw about its centre of mass)."""
+    """Also move the target object at placement (planar: world x, y and yaw about its centre of mass). Off by
+    default: what a grasp feels is the hand's pose relative to the object, and the TCP error already perturbs it in
+    all six dimensions (a planar object error is, to the hand, a TCP error in x, y and yaw); turning this on adds
+    that error a second time and mostly moves the object into its neighbours (codes 1-2, left out of
+    ``grip_robustness`` anyway). Turn it on to model a perception error of the object's position among clutter."""
     object_translation_sigma: float = 0.005
     """Standard deviation (m) of the object's x and y error (with ``object_noise``)."""
     object_rotation_sigma: float = math.radians(5.0)
     """Standard deviation (rad) of the object's yaw error (with ``object_noise``)."""
+    mass_sigma: float = 0.2
+    """Standard deviation of the log of the target's mass scale (dimensionless): the copy's mass and inertia are the
+    nominal ones times ``exp(mass_sigma z)``, so 0.2 is about +-20% at one sigma, median 1. Physical argument: the
+    record's mass is the mesh volume times an assumed density (or a catalogue mass), and the density of household
+    objects of one kind spreads by tens of percent (a full or half-empty bottle, wood versus plastic). Dex-Net 2.0
+    perturbs no mass (its metric is quasi-static); 0 turns it off."""
+    com_sigma: float = 0.0
+    """Standard deviation (m) of the target's centre-of-mass offset along each mesh axis. The record's centre of
+    mass assumes uniform density; contents (liquid, a battery) move it by millimetres to a centimetre on
+    hand-sized objects, so about 5 mm is the physical size of the error (Dex-Net's object random variable has such
+    a term, ``sigma_obj_com`` in ``dexnet/grasping/random_variables.py``). Off (0) by default all the same: the
+    object is not re-settled, so its resting pose is the nominal centre's, and a shifted centre sets it moving on
+    its own (a cylinder on its side rolls); the rules then label the copy 1 although the hand never touched it.
+    Measured on ``configs/smoke.yaml`` at 5 mm: the cylinder's copies went from 1-4 to 16 of 20 code 1."""
+    friction_sigma: float = 0.1
+    """Standard deviation of the target's sliding friction coefficient (dimensionless, absolute), truncated to
+    ``> 0``: the copy's coefficient is drawn from ``N(mu, friction_sigma^2)`` restricted to ``(0, inf)``. 0.1 is
+    Dex-Net's friction uncertainty (coefficient ~ N(0.5, 0.1^2) in Dex-Net 1.0 / 2.0's robust metrics, Mahler et al.
+    2016, 2017), and about the spread of measured coefficients of one material pair."""
     epsilon_delta: float = 0.0
     """``pfc`` counts copies with epsilon > this (0: the probability of force closure itself)."""
     radius: bool = False
@@ -134,9 +183,11 @@ class RobustnessParams:
     def __post_init__(self) -> None:
         check("num_perturbations", self.num_perturbations >= 1, "be >= 1", self.num_perturbations)
         for name in ("translation_sigma", "rotation_sigma", "object_translation_sigma", "object_rotation_sigma",
-                     "epsilon_delta"):
+                     "mass_sigma", "com_sigma", "friction_sigma", "epsilon_delta"):
             value = getattr(self, name)
             check(name, 0 <= value < math.inf, "be >= 0", value)
+        check("mass_sigma", self.mass_sigma <= 2.0, "be <= 2 (a log scale: exp(2) = 7.4 at one sigma)",
+              self.mass_sigma)
         check("radius_max_translation", 0 < self.radius_max_translation < math.inf, "be > 0",
               self.radius_max_translation)
         check("radius_max_rotation", 0 < self.radius_max_rotation <= math.pi, "be in (0, pi] rad",
@@ -255,6 +306,22 @@ def planar_object_noise(T_world_object: np.ndarray, center_of_mass: np.ndarray, 
     return out
 
 
+_NORMAL = NormalDist()
+
+
+def truncated_friction(mu: float, sigma: float, z: float) -> float:
+    """A friction coefficient from ``N(mu, sigma^2)`` truncated to ``> 0``, by inverse CDF of one standard normal
+    ``z`` (so one draw per copy, whatever the truncation): ``mu + sigma Phi^-1(a + Phi(z) (1 - a))`` with
+    ``a = Phi(-mu / sigma)``. ``sigma = 0`` gives ``mu``."""
+    if sigma == 0.0:
+        return float(mu)
+    a = _NORMAL.cdf(-mu / sigma)
+    u = a + _NORMAL.cdf(float(z)) * (1.0 - a)
+    u = min(max(u, 1e-15), 1.0 - 1e-15)
+    # Round-off can leave the value at or just below 0 when the draw sits at the truncation point.
+    return max(mu + sigma * _NORMAL.inv_cdf(u), 1e-6 * mu)
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Rolling out perturbed copies
 # ---------------------------------------------------------------------------------------------------------------
@@ -288,18 +355,43 @@ def initial_object_pose(simulator: LiftSimulator, target_body: str) -> np.ndarra
     return _pose(m.qpos0[a : a + 3], mat)
 
 
-def _with_object_pose(simulator: LiftSimulator, target_body: str, T_world_object: np.ndarray) -> LiftSimulator:
-    """A simulator of the same scene whose initial configuration has ``target_body`` at ``T_world_object``."""
-    m = simulator.model
+def _with_object_pose(simulator: LiftSimulator, target_body: str, T_world_object: np.ndarray | None,
+                      mass_scale: float = 1.0, com_offset: np.ndarray | None = None,
+                      friction: float | None = None) -> LiftSimulator:
+    """A simulator of the same scene whose initial configuration has ``target_body`` at ``T_world_object`` (None:
+    where it is), with the target's mass and inertia times ``mass_scale``, its centre of mass moved by
+    ``com_offset (3,)`` m (body frame = mesh frame) and the sliding friction of its geoms set to ``friction``."""
+    m = copy.deepcopy(simulator.model)
     bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, target_body)
     a = _free_qadr(m, bid)
     qpos = m.qpos0.copy()
-    qpos[a : a + 3] = T_world_object[:3, 3]
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T_world_object[:3, :3]).reshape(-1))
-    qpos[a + 3 : a + 7] = quat
+    if T_world_object is not None:
+        qpos[a : a + 3] = T_world_object[:3, 3]
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T_world_object[:3, :3]).reshape(-1))
+        qpos[a + 3 : a + 7] = quat
+    m.body_mass[bid] *= mass_scale
+    m.body_inertia[bid] *= mass_scale
+    if com_offset is not None:
+        m.body_ipos[bid] += com_offset
+    if friction is not None:
+        m.geom_friction[m.geom_bodyid == bid, 0] = friction
+    # Constants that depend on the masses (the constraint solver's inverse weights, subtree masses), recomputed at
+    # the model's qpos0 as at compile time.
+    mujoco.mj_setConst(m, mujoco.MjData(m))
     # The simulator's model already carries the protocol's physics and grip force; applying them again is a no-op.
     return LiftSimulator(m, simulator.params, qpos=qpos, prefix=simulator.prefix)
+
+
+def _target_friction(simulator: LiftSimulator, target_body: str) -> float:
+    """Sliding friction of the target's colliding geoms in the simulator's model (the largest, should they differ;
+    visual-only geoms keep MuJoCo's default 1 and do not count)."""
+    m = simulator.model
+    bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, target_body)
+    colliding = (m.geom_bodyid == bid) & ((m.geom_contype != 0) | (m.geom_conaffinity != 0))
+    if not colliding.any():
+        raise ValueError(f"target_body: body {target_body!r} has no colliding geom")
+    return float(m.geom_friction[colliding, 0].max())
 
 
 class _TargetPoses:
@@ -342,6 +434,12 @@ class GraspRobustness:
     """successes / n."""
     interval: tuple[float, float]
     """Wilson score 95% interval."""
+    grip_n: int
+    """Copies that reached the grip (outcome in :data:`GRIP_CODES`)."""
+    grip_robustness: float
+    """successes / grip_n; NaN when grip_n = 0."""
+    grip_interval: tuple[float, float]
+    """Wilson score 95% interval of grip_robustness."""
     pfc: float
     """Fraction of copies with epsilon > delta."""
     outcomes: np.ndarray
@@ -365,6 +463,7 @@ def grasp_robustness(
     params: RobustnessParams,
     epsilon: EpsilonParams,
     gripper: GripperSpec,
+    epsilon_friction_follows: bool = True,
 ) -> GraspRobustness:
     """Roll out the perturbed copies of one grasp and label it.
 
@@ -382,9 +481,13 @@ def grasp_robustness(
         The target's mesh, centre of mass and torque scale (epsilon of the copies).
     friction : float
         Coulomb coefficient of the epsilon's friction cones.
-    draws : (n, 9) float
+    draws : (n, 14) float
         Standard normals per copy (:data:`DRAWS_PER_COPY`): TCP translation, TCP rotation vector, object x, y, yaw
-        (the last three used only with ``params.object_noise``). ``n`` copies are rolled out.
+        (used only with ``params.object_noise``), mass scale, centre-of-mass offset, friction. ``n`` copies are
+        rolled out.
+    epsilon_friction_follows : bool
+        Whether the copies' epsilon uses each copy's perturbed friction (True: ``friction`` is the target's
+        simulated friction) or ``friction`` as given (a fixed ``metrics.epsilon.friction``).
     params : RobustnessParams
     epsilon : EpsilonParams
     gripper : GripperSpec
@@ -400,16 +503,28 @@ def grasp_robustness(
     poses = perturbed_poses(T_tcp_world, params.translation_sigma * draws[:, 0:3],
                             params.rotation_sigma * draws[:, 3:6])
     T_obj0 = initial_object_pose(simulator, target_body) if params.object_noise else None
+    physics = params.mass_sigma > 0 or params.com_sigma > 0 or params.friction_sigma > 0
+    mu_sim = _target_friction(simulator, target_body)
     n = len(draws)
     outcomes = np.zeros(n, dtype=np.int8)
     results: list[tuple[RolloutResult, np.ndarray | None, np.ndarray]] = []
+    coms = np.tile(np.asarray(geometry.center_of_mass, dtype=np.float64), (n, 1))
+    mus = np.full(n, float(friction))
     for j in range(n):
         sim = simulator
-        if params.object_noise:
-            dx, dy, yaw = draws[j, 6:9] * (params.object_translation_sigma, params.object_translation_sigma,
-                                           params.object_rotation_sigma)
-            sim = _with_object_pose(simulator, target_body,
-                                    planar_object_noise(T_obj0, geometry.center_of_mass, dx, dy, yaw))
+        if params.object_noise or physics:
+            T_obj = None
+            if params.object_noise:
+                dx, dy, yaw = draws[j, 6:9] * (params.object_translation_sigma, params.object_translation_sigma,
+                                               params.object_rotation_sigma)
+                T_obj = planar_object_noise(T_obj0, geometry.center_of_mass, dx, dy, yaw)
+            mass_scale = math.exp(params.mass_sigma * draws[j, 9])
+            offset = params.com_sigma * draws[j, 10:13]
+            mu = truncated_friction(mu_sim, params.friction_sigma, draws[j, 13])
+            coms[j] += offset
+            if epsilon_friction_follows:
+                mus[j] = mu
+            sim = _with_object_pose(simulator, target_body, T_obj, mass_scale, offset, mu)
         result, T_placed, T_closed = rollout_with_object_pose(sim, poses[j], width, target_body)
         outcomes[j] = result.code
         results.append((result, T_closed, T_placed))
@@ -429,13 +544,17 @@ def grasp_robustness(
         source, p, nrm, f = contact_set(rollout, T_closed if T_closed is not None else np.eye(4), rays.get(j))
         sources.append(source)
         if source != "none":
-            epsilons[j] = epsilon.epsilon(p, nrm, f, geometry, friction)
+            g = geometry if not params.com_sigma else dataclasses.replace(geometry, center_of_mass=coms[j])
+            epsilons[j] = epsilon.epsilon(p, nrm, f, g, float(mus[j]))
     successes = int((outcomes == Outcome.SUCCESS).sum())
+    grip_n = int(np.isin(outcomes, GRIP_CODES).sum())
     radius = np.full(len(RADIUS_AXES), np.nan)
     if params.radius:
         radius = robustness_radius(simulator, T_tcp_world, width, target_body, params)
     return GraspRobustness(
         n=n, successes=successes, robustness=successes / n, interval=wilson_interval(successes, n),
+        grip_n=grip_n, grip_robustness=successes / grip_n if grip_n else math.nan,
+        grip_interval=wilson_interval(successes, grip_n),
         pfc=float(np.mean(epsilons > params.epsilon_delta)), outcomes=outcomes, epsilons=epsilons,
         sources=tuple(sources), radius=radius,
     )
@@ -491,6 +610,9 @@ SCHEMA = pa.schema(
         ("robustness", pa.float64()),
         ("robustness_lo", pa.float64()),
         ("robustness_hi", pa.float64()),
+        ("grip_robustness", pa.float64()),
+        ("grip_robustness_lo", pa.float64()),
+        ("grip_robustness_hi", pa.float64()),
         ("pfc", pa.float64()),
         ("copy_outcomes", pa.list_(pa.int8())),
         ("copy_epsilon", pa.list_(pa.float64())),
@@ -524,7 +646,7 @@ def scene_robustness(
         Object records by name.
     params : RobustnessTaskParams
     rng : numpy.random.Generator
-        The task's generator: every draw is made up front, ``(grasps, num_perturbations, 9)``.
+        The task's generator: every draw is made up front, ``(grasps, num_perturbations, DRAWS_PER_COPY)``.
     """
     check_joined(grasps, rollouts, "rollouts")
     p, ep = params.robustness, params.epsilon
@@ -548,7 +670,8 @@ def scene_robustness(
             geometries[name] = object_geometry(records[name])
         mu = float(friction[k]) if ep.friction is None else ep.friction
         rows.append(grasp_robustness(simulator, poses[i], float(widths[i]), object_body_name(k, name),
-                                     geometries[name], mu, draws[i], p, ep, gripper))
+                                     geometries[name], mu, draws[i], p, ep, gripper,
+                                     epsilon_friction_follows=ep.friction is None))
 
     def num(get) -> pa.Array:
         return pa.array([get(r) if r is not None else nan for r in rows], pa.float64())
@@ -561,6 +684,9 @@ def scene_robustness(
         "robustness": num(lambda r: r.robustness),
         "robustness_lo": num(lambda r: r.interval[0]),
         "robustness_hi": num(lambda r: r.interval[1]),
+        "grip_robustness": num(lambda r: r.grip_robustness),
+        "grip_robustness_lo": num(lambda r: r.grip_interval[0]),
+        "grip_robustness_hi": num(lambda r: r.grip_interval[1]),
         "pfc": num(lambda r: r.pfc),
         "copy_outcomes": variable_list([r.outcomes if r is not None else () for r in rows], pa.int8()),
         "copy_epsilon": variable_list([r.epsilons if r is not None else () for r in rows], pa.float64()),
@@ -576,6 +702,8 @@ def scene_robustness(
         "evaluated": len(done),
         "copies": int(len(copy_outcomes)),
         "copy_successes": int((copy_outcomes == Outcome.SUCCESS).sum()),
+        "copy_outcomes": {name: int((copy_outcomes == code).sum()) for code, name in enumerate(OUTCOME_NAMES)},
+        "copy_grip_reached": int(np.isin(copy_outcomes, GRIP_CODES).sum()),
         "copy_contacts": {s: sources.count(s) for s in CONTACT_SOURCES},
     }
     return table, meta
