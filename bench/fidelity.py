@@ -6,7 +6,9 @@ Franka Panda grasps each, ``grasps/qualities/flex/object_in_gripper``), the gras
 
 * ``table``: the pipeline's protocol in free space (pre-grasp 5 cm back, approach, close, lift, hold; no shake):
   what ``gen evaluate`` did before protocols were named, the "before" numbers;
-* ``acronym``: ACRONYM's own test (:class:`graspgen.sim.lift.AcronymParams`): the "after" numbers.
+* ``acronym``: ACRONYM's own test (:class:`graspgen.sim.lift.AcronymParams`): the "after" numbers;
+* ``graspgen``: GraspDataGen's tug test (:class:`graspgen.sim.lift.GraspGenParams`), on request
+  (``--protocols table,acronym,graspgen``).
 
 Printed per object and pooled: agreement (our success == FleX held), Cohen's kappa, our and FleX's success rates,
 the confusion of our outcome codes against FleX held/lost, and, among our successes, the AUC with which a score
@@ -17,8 +19,9 @@ the robustness stage's default noise, 5 mm / 5 deg per axis, rolled out with the
 otherwise: it costs N rollouts per success). Also the median motion of the object during closing and shaking,
 ours against FleX's (ACRONYM's ``object_motion_during_*``), for the grasps both call held.
 
-``--speed``: acronym rollouts per second on the calibration mug in one process (one core), from the slope of two
-timed evaluations (300 and 10 grasps, so preparing the mesh and compiling the model do not count), best of 2.
+``--speed``: rollouts per second of each protocol run on the calibration mug in one process (one core), from the
+slope of two timed evaluations (300 and 10 grasps, so preparing the mesh and compiling the model do not count),
+best of 2.
 
 ``--sweep``: the sensitivity of the pooled agreement and kappa to the acronym protocol's free parameters, one at a
 time around the defaults (the others at their defaults): shake amplitude and frequency, grip force, closing speed,
@@ -31,7 +34,7 @@ would measure nothing. Where each default comes from (the ACRONYM paper and file
 scene, the Panda's data sheet, physical arguments) is written in :class:`graspgen.sim.lift.AcronymParams`; the
 sweep only shows how much the agreement depends on each choice.
 
-Run: ``python bench/fidelity.py [-j 2] [--limit N] [--protocols table,acronym] [--sweep] [--speed]
+Run: ``python bench/fidelity.py [-j 2] [--limit N] [--protocols table,acronym,graspgen] [--sweep] [--speed]
 [--robustness N] [--calibration DIR]``; writes ``bench/results_fidelity.json`` (gitignored). ``--limit N`` takes N
 evenly spaced grasps per object (quick runs); the default is all of them.
 """
@@ -59,7 +62,7 @@ from graspgen.io.acronym import read_acronym  # noqa: E402
 from graspgen.quality.epsilon import grasp_epsilon  # noqa: E402
 from graspgen.quality.robustness import RobustnessParams, perturbed_poses  # noqa: E402
 from graspgen.sim.grippers import build_gripper, load_gripper  # noqa: E402
-from graspgen.sim.lift import OUTCOME_NAMES, AcronymParams, LiftParams  # noqa: E402
+from graspgen.sim.lift import OUTCOME_NAMES, AcronymParams, GraspGenParams, LiftParams  # noqa: E402
 
 CALIBRATION = Path(os.environ.get("GRASPGEN_CALIBRATION", "/work/shared/calibration"))
 RESULTS = ROOT / "bench" / "results_fidelity.json"
@@ -260,12 +263,12 @@ def run_protocol(cases: list[Case], lift: LiftParams, args, label: str) -> dict:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def speed(cases: list[Case], args) -> dict:
-    """Acronym rollouts/s in one process on the calibration mug: slope between 10 and 300 grasps, best of 2."""
+def speed(cases: list[Case], args, protocol: str = "acronym") -> dict:
+    """``protocol``'s rollouts/s in one process on the calibration mug: slope between 10 and 300 grasps, best of 2."""
     case = next((c for c in cases if c.path.name.startswith(SPEED_OBJECT)), cases[0])
     full = read_acronym(case.path)
     T = full.tcp_poses()[subset(len(full), 300)]
-    lift = LiftParams(protocol="acronym")
+    lift = LiftParams(protocol=protocol)
     one = argparse.Namespace(**{**vars(args), "jobs": 1})
     best = None
     for _ in range(2):
@@ -391,10 +394,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("-j", "--jobs", type=int, default=2, help="worker processes per evaluation (default 2)")
     ap.add_argument("--limit", type=int, default=None, help="evenly spaced grasps per object (default: all)")
-    ap.add_argument("--protocols", default="table,acronym", help="comma-separated: table, acronym")
+    ap.add_argument("--protocols", default="table,acronym", help="comma-separated: table, acronym, graspgen")
     ap.add_argument("--sweep", action="store_true", help="sensitivity of pooled agreement/kappa (acronym protocol)")
     ap.add_argument("--sweep-only", default="", help="comma-separated words: sweep only parameters naming one")
-    ap.add_argument("--speed", action="store_true", help="acronym rollouts/s on the calibration mug, one core")
+    ap.add_argument("--speed", action="store_true", help="rollouts/s of each protocol on the calibration mug, one "
+                    "core (acronym when --protocols is empty)")
     ap.add_argument("--robustness", type=int, default=0, help="perturbed copies per success for the robustness AUC")
     ap.add_argument("--gripper", default="panda")
     ap.add_argument("--calibration", type=Path, default=CALIBRATION)
@@ -404,21 +408,25 @@ def main(argv: list[str] | None = None) -> int:
     protocols = [p for p in args.protocols.split(",") if p]
     cases = load_cases(args.calibration, args.limit)
     report: dict = {"limit": args.limit, "gripper": gripper_info(args.gripper), "protocols": {},
-                    "acronym_params": AcronymParams().to_dict(), "machine": platform.platform(),
+                    "acronym_params": AcronymParams().to_dict(), "graspgen_params": GraspGenParams().to_dict(),
+                    "machine": platform.platform(),
                     "mujoco": mujoco.__version__}
     g = report["gripper"]
     print(f"gripper {g['name']}: geoms {g['geoms']}; {g['source'][:160]}")
     for protocol in protocols:
         lift = LiftParams().with_protocol(protocol)
         report["protocols"][protocol] = run_protocol(cases, lift, args, protocol)
-        print_protocol(f"{protocol} protocol ({'free space, no shake' if protocol == 'table' else 'ACRONYM'})",
+        kind = {"table": "free space, no shake", "acronym": "ACRONYM", "graspgen": "GraspDataGen"}[protocol]
+        print_protocol(f"{protocol} protocol ({kind})",
                        report["protocols"][protocol], bool(args.robustness))
     if args.speed:
-        report["speed"] = s = speed(cases, args)
-        print(f"\nspeed (acronym, {s['object']}, one process): {s['rollouts_per_s']:.1f} rollouts/s wall, "
-              f"{s['rollouts_per_cpu_s']:.1f} per CPU second, {s['steps_per_rollout']:.0f} steps/rollout, "
-              f"{s['us_per_step']:.1f} us/step (load average {s['load_average']:.1f} on {s['cpus']} cores); "
-              f"{s['outcomes']}")
+        report["speed"] = {}
+        for protocol in protocols or ["acronym"]:
+            report["speed"][protocol] = s = speed(cases, args, protocol)
+            print(f"\nspeed ({protocol}, {s['object']}, one process): {s['rollouts_per_s']:.1f} rollouts/s wall, "
+                  f"{s['rollouts_per_cpu_s']:.1f} per CPU second, {s['steps_per_rollout']:.0f} steps/rollout, "
+                  f"{s['us_per_step']:.1f} us/step (load average {s['load_average']:.1f} on {s['cpus']} cores); "
+                  f"{s['outcomes']}")
     if args.sweep:
         report["sweep"] = rows = sweep(cases, args)
         print("\n### sweep (acronym protocol, pooled; one parameter at a time, * = default)\n")

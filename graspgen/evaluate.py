@@ -308,7 +308,8 @@ def evaluate_grasps(
         True: no support, gravity off until the fingers have closed. False: on a table, in the most probable
         stable pose (module docstring; ``table`` protocol only).
     protocol : str, optional
-        ``table`` or ``acronym`` (module docstring); None: ``params.lift.protocol`` (``table`` by default).
+        ``table``, ``acronym`` or ``graspgen`` (module docstring); None: ``params.lift.protocol`` (``table`` by
+        default).
     jobs : int
         Worker processes (contiguous chunks of grasps; each builds its own model); <= 0 means one per core.
     cache_dir : str or Path, optional
@@ -324,7 +325,8 @@ def evaluate_grasps(
     graspgen.errors.InputError
         The mesh cannot be used (missing, broken, absurd size); the message names the file.
     graspgen.errors.SettingsError
-        Unknown gripper (the message lists the choices) or protocol; ``acronym`` with ``free_space=False``.
+        Unknown gripper (the message lists the choices) or protocol; ``acronym`` or ``graspgen`` with
+        ``free_space=False``.
     ValueError
         Poses or widths of the wrong shape, non-finite, or not rigid (the message names the first bad index).
     """
@@ -336,9 +338,9 @@ def evaluate_grasps(
     if protocol is not None:
         params = dataclasses.replace(params, lift=params.lift.with_protocol(protocol))
     acronym = params.lift.protocol == "acronym"
-    if acronym and not free_space:
-        raise SettingsError("protocol: 'acronym' is a free-space protocol (no support plane); use 'table' with a "
-                            "support")
+    if params.lift.protocol in ("acronym", "graspgen") and not free_space:
+        raise SettingsError(f"protocol: {params.lift.protocol!r} is a free-space protocol (no support plane); use "
+                            "'table' with a support")
     spec = load_gripper(gripper)
     T = check_transforms("T_tcp", T_tcp)
     n = len(T)

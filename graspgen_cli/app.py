@@ -253,8 +253,9 @@ def evaluate(
         str | None,
         typer.Option(
             "--protocol",
-            help="acronym (ACRONYM's free-space close-and-shake) or table (approach, close, lift); default: acronym "
-            "for ACRONYM files (table with --support), table for Parquet.",
+            help="acronym (ACRONYM's free-space close-and-shake), graspgen (GraspDataGen's free-space tug test: "
+            "gravity off, close, pull with the object's weight along +z and four tilted directions) or table "
+            "(approach, close, lift); default: acronym for ACRONYM files (table with --support), table for Parquet.",
         ),
     ] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Worker processes (0 = all cores).")] = 1,

@@ -235,8 +235,9 @@ def test_evaluate_grasps_protocol_argument_and_the_table_default(acronym_file, t
     assert json.loads(table.schema.metadata[METADATA_KEY.encode()])["protocol"] == "table"
     assert set(table.column("width_source").to_pylist()) == {"raycast", "open"}
     assert np.isnan(table.column("motion_shaking_linear").to_numpy()).all()  # no shake by default
-    with pytest.raises(ValueError, match="free-space protocol"):
-        evaluate_grasps(mesh, 0.001, T, None, "panda", params, protocol="acronym", free_space=False)
+    for protocol in ("acronym", "graspgen"):
+        with pytest.raises(ValueError, match=f"'{protocol}' is a free-space protocol"):
+            evaluate_grasps(mesh, 0.001, T, None, "panda", params, protocol=protocol, free_space=False)
 
 
 def test_a_gripper_file_can_be_given_by_path(tmp_path):

@@ -24,6 +24,10 @@ placed at the grasp with open fingers and closes on the floating object, then gr
 axis, the hand shakes along and about its own axes, and the label is whether the object is still between the fingers
 (:class:`AcronymParams` cites where each number comes from). On the calibration mug (``bench/fidelity.py``) a held
 object takes ~650-950 steps (0.2-0.8 s closing from fully open, 1 s of shaking, 0.1 s settle), ~50 rollouts/s.
+``graspgen`` is GraspDataGen's (the data generator of NVIDIA's GraspGen) free-space tug test: gravity off, the open
+hand at the grasp closes, then the object is pulled with its own weight along the hand's approach axis and four
+directions tilted 63.4 degrees from it, 0.5 s each; the label is whether both fingers still touch it
+(:class:`GraspGenParams` cites the source).
 
 Determinism: every rollout starts from ``mj_resetData`` (which also clears the solver's warm start) plus the saved
 initial ``qpos``, so a rollout's result depends only on its inputs, not on earlier rollouts in the same
@@ -62,6 +66,7 @@ __all__ = [
     "PHASES",
     "PROTOCOLS",
     "AcronymParams",
+    "GraspGenParams",
     "LiftParams",
     "RolloutResult",
     "LiftSimulator",
@@ -85,9 +90,10 @@ OUTCOME_NAMES: tuple[str, ...] = tuple(o.name.lower() for o in Outcome)
 #: Phases of a rollout, in order; :attr:`RolloutResult.decided_in` is one of them (``"end"``: all phases ran).
 PHASES: tuple[str, ...] = ("placement", "approach", "closing", "lifting", "holding", "shaking", "end")
 
-#: The named protocols (:attr:`LiftParams.protocol`): ``table`` (the pipeline's grasp-and-lift, the default) and
-#: ``acronym`` (ACRONYM's free-space close-and-shake, :class:`AcronymParams`).
-PROTOCOLS: tuple[str, ...] = ("table", "acronym")
+#: The named protocols (:attr:`LiftParams.protocol`): ``table`` (the pipeline's grasp-and-lift, the default),
+#: ``acronym`` (ACRONYM's free-space close-and-shake, :class:`AcronymParams`) and ``graspgen`` (GraspDataGen's
+#: free-space tug test, :class:`GraspGenParams`).
+PROTOCOLS: tuple[str, ...] = ("table", "acronym", "graspgen")
 
 # Geom roles (index = outcome code for a gripper contact with such a geom during placement/approach).
 _SUPPORT, _TARGET, _CLUTTER, _GRIPPER = 0, 1, 2, 3
@@ -221,6 +227,90 @@ class AcronymParams:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
+#: GraspDataGen's tug directions, (x, y, z) before normalising, in its order (``default_tug_sequences``).
+_GRASPDATAGEN_TUGS = ((0.0, 0.0, 1.0), (0.0, 2.0, 1.0), (0.0, -2.0, 1.0), (2.0, 0.0, 1.0), (-2.0, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class GraspGenParams:
+    """Settings of the ``graspgen`` protocol (``LiftParams(protocol="graspgen")``): the grasp validation of
+    GraspDataGen, the data generator published with NVIDIA's GraspGen (Murali et al., "GraspGen: A Diffusion-based
+    Framework for 6-DOF Grasping", arXiv:2507.13097; github.com/NVlabs/GraspDataGen, ``scripts/graspgen/grasp_sim.py``,
+    Isaac Lab / PhysX).
+
+    What comes from where:
+
+    * **GraspDataGen's ``grasp_sim.py`` (its defaults)**: the simulation runs with gravity disabled
+      (``gravity_enabled=False``, and ``disable_gravity=True`` on the object) and no ground, i.e. in free space; the
+      gripper's root is placed at the origin and the object at the inverse of the grasp transform, so the world frame
+      is the hand's frame; the gripper starts at its pre-grasp joint positions and its joints are driven to the
+      closing limit (stiffness 4000, damping 200) for ``initial_grasp_duration`` = 1.0 s; then ``tug_sequences``
+      pull the object: ``[[0.5, [0, 0, 1], 1.0], [0.5, [0, 2, 1], 1.0], [0.5, [0, -2, 1], 1.0], [0.5, [2, 0, 1],
+      1.0], [0.5, [-2, 0, 1], 1.0]]`` (duration s, direction normalised, scale), a constant external force at the
+      object's centre of mass of ``force_magnitude`` (1.0, in g) x gravity magnitude x object mass, i.e. the
+      object's own weight, held fixed in the world (the hand's) frame while the object turns. The directions are
+      +z (the approach axis of its grippers, ``approach_axis`` 2: out through the fingertips) and four tilted
+      atan(2) = 63.4 degrees from it towards +-y and +-x. Physics at 250 Hz (4 ms). A grasp succeeds when the
+      object is still in the grasp at the end: both finger colliders' contact sensors report contact with the
+      object (NVlabs' version; some forks read a 5 cm drift of the object in the hand instead). Read from the
+      public copies of the script (NVIDIA's file in forks of the repository), which agree on these defaults.
+    * **Mapped onto our simulator**: the force is applied with ``xfrc_applied`` on the target body (MuJoCo applies it
+      at the centre of mass), in the world frame, along the TCP frame's axes at the grasp pose (the hand is held
+      there by its weld): z approach, x closing, y = z x x. GraspDataGen's x / y are its gripper file's axes; which
+      one closes depends on the gripper, so we take x = closing; both signs of each are applied, so only the order
+      of the two tilted pairs could differ. The hand is placed *at* the grasp with the jaws fully open
+      (``open_width``; GraspDataGen's pre-grasp joint positions come from its grasp-guess step, which opens the
+      gripper to its open limit), and, as in the ``acronym`` protocol, a hand touching anything there is a
+      collision (GraspDataGen's guesses are collision-free by construction, so the rule only labels what it never
+      simulates).
+    * **Ours, by physical argument** (the source gives no such number): the grip force is the gripper model's rated
+      force (``grip_force``; GraspDataGen's is whatever its USD drive saturates at), closing at the model's speed;
+      closing ends when the jaws have stopped (``LiftParams.close_speed_tol`` / ``close_timeout``, at least the time
+      to close fully from open) instead of after a fixed 1 s: with gravity off and no load nothing happens in the
+      rest of that second but contact settling. No settle time after the last tug: the label is read when the last
+      force ends, as GraspDataGen does.
+
+    Rules: the open hand touching the target at placement -> 1 collision_with_target (any other geom: 0 / 2 as in
+    the table protocol); after closing, not both jaws on the target -> 3 no_contact_established; during the tugs
+    (phase ``shaking``), neither jaw touching the target -> 4 (it left the hand; the rollout stops); at the end
+    both jaws touching -> 5 success, else 4 (decided in ``end``). ``motion_shaking_*`` measure the tug.
+    """
+
+    open_width: float | None = None
+    """Pad separation (m) the jaws open to at placement; null: the gripper's ``max_width``."""
+    grip_force: float | None = None
+    """Force (N) each jaw presses with; null: the gripper model's ``force_limit``."""
+    closing_speed: float | None = None
+    """Width rate (m/s) of the closing jaws; null: the gripper model's. The jaw damping is set to
+    ``2 * grip_force / closing_speed``."""
+    force_scale: float = 1.0
+    """Tug force in multiples of the object's weight (mass x the scene's gravity magnitude; GraspDataGen's
+    ``force_magnitude`` 1.0 x each sequence's scale 1.0)."""
+    tug_time: float = 0.5
+    """Duration (s) of each of the five tugs (GraspDataGen: 0.5 s each)."""
+    tug_tilt: float = math.atan(2.0)
+    """Angle (rad) of the four tilted tugs from the approach axis (GraspDataGen's (0, +-2, 1), (+-2, 0, 1):
+    atan(2) = 1.107 rad = 63.4 degrees)."""
+
+    def __post_init__(self) -> None:
+        for key in ("open_width", "grip_force", "closing_speed"):
+            if getattr(self, key) is not None:
+                object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0, low_open=True))
+        object.__setattr__(self, "force_scale", check_number("force_scale", self.force_scale, low=0.0))
+        object.__setattr__(self, "tug_time", check_number("tug_time", self.tug_time, low=0.0, low_open=True))
+        object.__setattr__(self, "tug_tilt", check_number("tug_tilt", self.tug_tilt, low=0.0, high=math.pi))
+
+    def directions(self) -> np.ndarray:
+        """``(5, 3)`` unit tug directions in the TCP frame (x closing, y, z approach), in order: +z, then tilted
+        towards +y, -y, +x, -x."""
+        c, s = math.cos(self.tug_tilt), math.sin(self.tug_tilt)
+        return np.array([[0.0, 0.0, 1.0]] + [[s * x / 2.0, s * y / 2.0, c] for x, y, _ in _GRASPDATAGEN_TUGS[1:]])
+
+    def to_dict(self) -> dict:
+        """Plain-data view (for configs and metadata)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
 @dataclass(frozen=True)
 class LiftParams:
     """Protocol, outcome thresholds and physics settings of a grasp-and-lift rollout.
@@ -232,18 +322,22 @@ class LiftParams:
     30 N sits about in the geometric middle (a factor ~2 from either edge; the 2F-85 grips with 20-235 N).
 
     ``protocol`` names the phase sequence (:data:`PROTOCOLS`): ``table`` (default; every field below but
-    ``acronym``) or ``acronym`` (its own settings in ``acronym``; of the fields below it uses the closing stop
-    (``close_speed_tol``, ``close_timeout``), ``check_interval`` and the physics). :meth:`with_protocol` switches.
+    ``acronym`` and ``graspgen``), ``acronym`` (its own settings in ``acronym``) or ``graspgen`` (its own settings
+    in ``graspgen``); of the fields below these two use the closing stop (``close_speed_tol``, ``close_timeout``),
+    ``check_interval`` and the physics. :meth:`with_protocol` switches.
     """
 
     # -- protocol ---------------------------------------------------------------------------------------------------
-    protocol: Literal["table", "acronym"] = "table"
+    protocol: Literal["table", "acronym", "graspgen"] = "table"
     """``table``: place at the pre-grasp pose, approach, close, lift, hold (optionally shake), on a support or in
     free space (the pipeline's protocol). ``acronym``: ACRONYM's free-space protocol, placed at the grasp with the
     jaws open, close, shake along and about the hand's axes, label = object still between the fingers
     (:class:`AcronymParams`)."""
     acronym: AcronymParams = field(default_factory=AcronymParams)
-    """Settings of the ``acronym`` protocol (ignored by ``table``)."""
+    """Settings of the ``acronym`` protocol (ignored by the others)."""
+    graspgen: GraspGenParams = field(default_factory=GraspGenParams)
+    """Settings of the ``graspgen`` protocol (ignored by the others): gravity off, close, then tug the object with
+    its own weight along the approach and four tilted directions; held if both fingers still touch it."""
 
     # -- approach ---------------------------------------------------------------------------------------------------
     approach_distance: float = 0.05
@@ -337,6 +431,7 @@ class LiftParams:
     def __post_init__(self) -> None:
         check_choice("protocol", self.protocol, PROTOCOLS)
         check_instance("acronym", self.acronym, AcronymParams)
+        check_instance("graspgen", self.graspgen, GraspGenParams)
         for key in ("approach_distance", "width_margin", "lift_height", "hold_time", "shake_amplitude",
                     "shake_angle", "max_target_shift", "max_target_turn", "slip_tolerance",
                     "slip_rotation_tolerance"):
@@ -365,14 +460,14 @@ class LiftParams:
                               integrator=self.integrator, gravity=tuple(float(g) for g in gravity))
 
     def with_protocol(self, protocol: str) -> LiftParams:
-        """A copy with ``protocol`` set (the other settings, the ``acronym`` section included, are kept)."""
+        """A copy with ``protocol`` set (the other settings, the protocols' sections included, are kept)."""
         check_choice("protocol", protocol, PROTOCOLS)
         return dataclasses.replace(self, protocol=protocol)
 
     def to_dict(self) -> dict:
         """Plain-data view (for configs and metadata)."""
-        return {f.name: (getattr(self, f.name).to_dict() if f.name == "acronym" else getattr(self, f.name))
-                for f in fields(self)}
+        return {f.name: (getattr(self, f.name).to_dict() if f.name in ("acronym", "graspgen")
+                         else getattr(self, f.name)) for f in fields(self)}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -656,7 +751,10 @@ class LiftSimulator:
         """Width rate (m/s) of the closing jaws when nothing is in the way."""
         acr = params.acronym
         self._acronym = params.protocol == "acronym"
-        if not self._acronym:
+        self._graspgen = params.protocol == "graspgen"
+        if self._graspgen:
+            acr = params.graspgen  # the same grip settings (open_width, grip_force, closing_speed) as acronym's
+        if not (self._acronym or self._graspgen):
             self.grip_force = model_force if params.grip_force is None else params.grip_force
             """Force (N) each jaw presses with when closed on an object."""
             m.actuator_forcerange[self._act] = (-self.grip_force, self.grip_force)
@@ -749,6 +847,13 @@ class LiftSimulator:
             self._shake_z = _shake_wave(params.shake_amplitude, params.shake_frequency, params.shake_cycles, dt)
             half = 0.5 * _shake_wave(params.shake_angle, params.shake_frequency, params.shake_cycles, dt)
             self._shake_qx = np.stack([np.cos(half), np.sin(half), np.zeros_like(half), np.zeros_like(half)], 1)
+        if self._graspgen:
+            self._open_width = float(np.clip(self.max_width if acr.open_width is None else acr.open_width,
+                                             self.min_width, self.max_width))
+            self._tug_steps = max(1, int(round(acr.tug_time / dt)))
+            self._tug_dirs = acr.directions()
+            full_close = 1.25 * (self._open_width - self.min_width) / self.closing_speed
+            self._close_max_steps = max(self._close_max_steps, math.ceil(full_close / dt - 1e-9))
         if self._acronym:
             self._open_width = float(np.clip(self.max_width if acr.open_width is None else acr.open_width,
                                              self.min_width, self.max_width))
@@ -935,6 +1040,9 @@ class LiftSimulator:
         width = check_number("width", width, low=0.0)
         target, roles, index = self._target_roles(target_body)
         self.steps = 0
+        if self._graspgen:
+            return self._rollout_graspgen(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], target, roles,
+                                          observer)
         if self._acronym:
             return self._rollout_acronym(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], target, roles,
                                          observer)
@@ -1119,6 +1227,70 @@ class LiftSimulator:
         except _Decided as decided:
             code, phase = Outcome(decided.code), decided.phase
         finally:
+            self._gravity_view[:] = self._gravity
+        if rel0 is not None:
+            rel_p, rel_R = self._relative(target)
+            rel_t = math.sqrt(float((rel_p - rel0[0]) @ (rel_p - rel0[0])))
+            rel_r = _angle(rel0[1], rel_R)
+        if shake_mark is not None:
+            motion_shaking = self._motion(target, shake_mark)
+        return RolloutResult(
+            code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
+            sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=nan,
+            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
+            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
+            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
+            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)
+
+    def _rollout_graspgen(self, pos, quat, R, target, roles, observer) -> RolloutResult:
+        """The ``graspgen`` protocol (:class:`GraspGenParams`, class docstring)."""
+        gg = self.params.graspgen
+        nan = math.nan
+        closed_width = rel_t = rel_r = nan
+        motion_closing = motion_shaking = (nan, nan)
+        pose_closed = np.full((4, 4), nan)
+        shake_mark = rel0 = None
+        contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
+        xfrc = self.data.xfrc_applied
+        self._gravity_view[:] = 0.0
+        try:
+            # 1. placement: at the grasp pose, jaws open; the open hand must not touch anything
+            self._place(pos, quat, self._open_width)
+            if observer is not None:
+                observer("placement", 0)
+            code = self._contact_code(roles)
+            if code is not None:
+                raise _Decided(code, "placement")
+            # 2. closing (gravity off throughout)
+            close_mark = self._mark(target)
+            self._close(observer)
+            closed_width = self._width()
+            motion_closing = self._motion(target, close_mark)
+            pose_closed = self._body_pose(target)
+            contacts = self._jaw_contacts(roles)
+            if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
+                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
+            rel0 = self._relative(target)
+
+            def check_held(phase: str) -> None:
+                if not any(self._jaws_on(roles)):
+                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
+
+            # 3. the tugs: the object's weight along each direction (TCP frame at the grasp), at its centre of mass
+            weight = gg.force_scale * float(self.model.body_subtreemass[target]) * math.sqrt(
+                float(self._gravity @ self._gravity))
+            shake_mark = self._mark(target)
+            for direction in self._tug_dirs:
+                xfrc[target, :3] = weight * (R @ direction)
+                self._wait(self._tug_steps, "shaking", check_held, observer)
+            xfrc[target, :3] = 0.0
+            if not all(self._jaws_on(roles)):
+                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
+            code, phase = Outcome.SUCCESS, "end"
+        except _Decided as decided:
+            code, phase = Outcome(decided.code), decided.phase
+        finally:
+            xfrc[target] = 0.0
             self._gravity_view[:] = self._gravity
         if rel0 is not None:
             rel_p, rel_R = self._relative(target)
