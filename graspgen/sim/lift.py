@@ -1040,12 +1040,11 @@ class LiftSimulator:
         width = check_number("width", width, low=0.0)
         target, roles, index = self._target_roles(target_body)
         self.steps = 0
+        R = np.asarray(T_tcp_world, dtype=float)[:3, :3]
         if self._graspgen:
-            return self._rollout_graspgen(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], target, roles,
-                                          observer)
+            return self._rollout_free_space(pos, quat, R, target, roles, observer, self._graspgen_tugs)
         if self._acronym:
-            return self._rollout_acronym(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], target, roles,
-                                         observer)
+            return self._rollout_free_space(pos, quat, R, target, roles, observer, self._acronym_shake)
         return self._rollout_table(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], width, target, roles,
                                    index, observer)
 
@@ -1177,131 +1176,85 @@ class LiftSimulator:
         hits = np.concatenate([side[:, 0][on_target[:, 1]], side[:, 1][on_target[:, 0]]])
         return bool(np.any(hits == _LEFT)), bool(np.any(hits == _RIGHT))
 
-    def _rollout_acronym(self, pos, quat, R, target, roles, observer) -> RolloutResult:
-        """The ``acronym`` protocol (:class:`AcronymParams`, class docstring)."""
+    def _rollout_free_space(self, pos, quat, R, target, roles, observer, disturb) -> RolloutResult:
+        """The frame the free-space protocols share (``acronym``, ``graspgen``): gravity off, the hand placed at the
+        grasp pose with its jaws open (touching anything there decides the grasp), closed, then
+        ``disturb(pos, quat, R, target, check_held, observer)`` tests the grip (the protocol's own part);
+        success when both jaws still touch the target at the end."""
+        nan = math.nan
+        closed_width = rel_t = rel_r = nan
+        motion_closing = motion_shaking = (nan, nan)
+        pose_closed = np.full((4, 4), nan)
+        shake_mark = rel0 = None
+        contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
+        self._gravity_view[:] = 0.0
+        try:
+            # 1. placement: at the grasp pose, jaws open; the open hand must not touch anything
+            self._place(pos, quat, self._open_width)
+            if observer is not None:
+                observer("placement", 0)
+            code = self._contact_code(roles)
+            if code is not None:
+                raise _Decided(code, "placement")
+            # 2. closing, gravity off
+            close_mark = self._mark(target)
+            self._close(observer)
+            closed_width = self._width()
+            motion_closing = self._motion(target, close_mark)
+            pose_closed = self._body_pose(target)
+            contacts = self._jaw_contacts(roles)
+            if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
+                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
+            rel0 = self._relative(target)
+
+            def check_held(phase: str) -> None:
+                if not any(self._jaws_on(roles)):
+                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
+
+            # 3. the protocol's disturbance
+            shake_mark = self._mark(target)
+            disturb(pos, quat, R, target, check_held, observer)
+            if not all(self._jaws_on(roles)):
+                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
+            code, phase = Outcome.SUCCESS, "end"
+        except _Decided as decided:
+            code, phase = Outcome(decided.code), decided.phase
+        finally:
+            self.data.xfrc_applied[target] = 0.0
+            self._gravity_view[:] = self._gravity
+        if rel0 is not None:
+            rel_p, rel_R = self._relative(target)
+            rel_t = math.sqrt(float((rel_p - rel0[0]) @ (rel_p - rel0[0])))
+            rel_r = _angle(rel0[1], rel_R)
+        if shake_mark is not None:
+            motion_shaking = self._motion(target, shake_mark)
+        return RolloutResult(
+            code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
+            sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=nan,
+            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
+            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
+            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
+            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)
+
+    def _acronym_shake(self, pos, quat, R, target, check_held, observer) -> None:
+        """``acronym`` (:class:`AcronymParams`): gravity on as configured, shake along the approach axis, then about
+        the closing axis through the TCP, then settle."""
         acr = self.params.acronym
-        z_axis = R[:, 2].copy()
-        nan = math.nan
-        closed_width = rel_t = rel_r = nan
-        motion_closing = motion_shaking = (nan, nan)
-        pose_closed = np.full((4, 4), nan)
-        shake_mark = rel0 = None
-        contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
-        self._gravity_view[:] = 0.0
-        try:
-            # 1. placement: at the grasp pose, jaws open; the open hand must not touch anything
-            self._place(pos, quat, self._open_width)
-            if observer is not None:
-                observer("placement", 0)
-            code = self._contact_code(roles)
-            if code is not None:
-                raise _Decided(code, "placement")
-            # 2. closing
-            close_mark = self._mark(target)
-            self._close(observer)
-            closed_width = self._width()
-            motion_closing = self._motion(target, close_mark)
-            pose_closed = self._body_pose(target)
-            contacts = self._jaw_contacts(roles)
-            if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
-                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
-            if acr.gravity == "world":
-                self._gravity_view[:] = self._gravity
-            elif acr.gravity == "approach":
-                self._gravity_view[:] = math.sqrt(float(self._gravity @ self._gravity)) * z_axis
-            rel0 = self._relative(target)
-
-            def check_held(phase: str) -> None:
-                if not any(self._jaws_on(roles)):
-                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
-
-            # 3. shake: along the approach axis, then about the closing axis through the TCP; then settle
-            shake_mark = self._mark(target)
-            self._move(pos + self._shake_z[:, None] * z_axis, None, "shaking", check_held, observer)
-            self._move(np.repeat(pos[None], len(self._shake_qx), axis=0), _quat_mul(quat, self._shake_qx),
-                       "shaking", check_held, observer)
-            self._wait(self._settle_steps, "holding", check_held, observer)
-            if not all(self._jaws_on(roles)):
-                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
-            code, phase = Outcome.SUCCESS, "end"
-        except _Decided as decided:
-            code, phase = Outcome(decided.code), decided.phase
-        finally:
+        if acr.gravity == "world":
             self._gravity_view[:] = self._gravity
-        if rel0 is not None:
-            rel_p, rel_R = self._relative(target)
-            rel_t = math.sqrt(float((rel_p - rel0[0]) @ (rel_p - rel0[0])))
-            rel_r = _angle(rel0[1], rel_R)
-        if shake_mark is not None:
-            motion_shaking = self._motion(target, shake_mark)
-        return RolloutResult(
-            code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
-            sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=nan,
-            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
-            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
-            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
-            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)
+        elif acr.gravity == "approach":
+            self._gravity_view[:] = math.sqrt(float(self._gravity @ self._gravity)) * R[:, 2]
+        self._move(pos + self._shake_z[:, None] * R[:, 2], None, "shaking", check_held, observer)
+        self._move(np.repeat(pos[None], len(self._shake_qx), axis=0), _quat_mul(quat, self._shake_qx),
+                   "shaking", check_held, observer)
+        self._wait(self._settle_steps, "holding", check_held, observer)
 
-    def _rollout_graspgen(self, pos, quat, R, target, roles, observer) -> RolloutResult:
-        """The ``graspgen`` protocol (:class:`GraspGenParams`, class docstring)."""
-        gg = self.params.graspgen
-        nan = math.nan
-        closed_width = rel_t = rel_r = nan
-        motion_closing = motion_shaking = (nan, nan)
-        pose_closed = np.full((4, 4), nan)
-        shake_mark = rel0 = None
-        contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
-        xfrc = self.data.xfrc_applied
-        self._gravity_view[:] = 0.0
-        try:
-            # 1. placement: at the grasp pose, jaws open; the open hand must not touch anything
-            self._place(pos, quat, self._open_width)
-            if observer is not None:
-                observer("placement", 0)
-            code = self._contact_code(roles)
-            if code is not None:
-                raise _Decided(code, "placement")
-            # 2. closing (gravity off throughout)
-            close_mark = self._mark(target)
-            self._close(observer)
-            closed_width = self._width()
-            motion_closing = self._motion(target, close_mark)
-            pose_closed = self._body_pose(target)
-            contacts = self._jaw_contacts(roles)
-            if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
-                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
-            rel0 = self._relative(target)
-
-            def check_held(phase: str) -> None:
-                if not any(self._jaws_on(roles)):
-                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
-
-            # 3. the tugs: the object's weight along each direction (TCP frame at the grasp), at its centre of mass
-            weight = gg.force_scale * float(self.model.body_subtreemass[target]) * math.sqrt(
-                float(self._gravity @ self._gravity))
-            shake_mark = self._mark(target)
-            for direction in self._tug_dirs:
-                xfrc[target, :3] = weight * (R @ direction)
-                self._wait(self._tug_steps, "shaking", check_held, observer)
-            xfrc[target, :3] = 0.0
-            if not all(self._jaws_on(roles)):
-                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
-            code, phase = Outcome.SUCCESS, "end"
-        except _Decided as decided:
-            code, phase = Outcome(decided.code), decided.phase
-        finally:
-            xfrc[target] = 0.0
-            self._gravity_view[:] = self._gravity
-        if rel0 is not None:
-            rel_p, rel_R = self._relative(target)
-            rel_t = math.sqrt(float((rel_p - rel0[0]) @ (rel_p - rel0[0])))
-            rel_r = _angle(rel0[1], rel_R)
-        if shake_mark is not None:
-            motion_shaking = self._motion(target, shake_mark)
-        return RolloutResult(
-            code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
-            sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=nan,
-            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
-            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
-            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
-            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)
+    def _graspgen_tugs(self, pos, quat, R, target, check_held, observer) -> None:
+        """``graspgen`` (:class:`GraspGenParams`): gravity stays off; the object's weight pulls it along each tug
+        direction (TCP frame at the grasp) at its centre of mass."""
+        weight = self.params.graspgen.force_scale * float(self.model.body_subtreemass[target]) * math.sqrt(
+            float(self._gravity @ self._gravity))
+        for direction in self._tug_dirs:
+            self.data.xfrc_applied[target, :3] = weight * (R @ direction)
+            self._wait(self._tug_steps, "shaking", check_held, observer)
+        self.data.xfrc_applied[target, :3] = 0.0
