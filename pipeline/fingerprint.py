@@ -195,8 +195,7 @@ def _distribution_versions(top_level: str) -> dict[str, str]:
     try:
         return {top_level.lower(): importlib.metadata.version(top_level)}  # the usual case, and fast
     except (importlib.metadata.PackageNotFoundError, ValueError):
-        pass
-    names = _packages_distributions().get(top_level, [])  # e.g. yaml -> pyyaml, PIL -> pillow: scans once
+        names = _packages_distributions().get(top_level, [])  # e.g. yaml -> pyyaml, PIL -> pillow: scans once
     versions = {}
     for dist in names:
         try:
