@@ -68,6 +68,7 @@ simulated ... rel_rotation                rollout details (``stages.rollouts``):
                                           sim_time s, closed_width m, lift_gain m, rel_translation m, rel_rotation rad
 contact_points/_normals  list<float64>    finger-object contacts at the end of closing, world frame, k*3 values
 contact_forces           list<float64>    their normal forces, N; contact_fingers list<int8>: 0 left, 1 right
+target_pose_closed       float64[16]      the target's pose when closing ended (maps the contacts to its frame)
 robustness_n             int32            perturbed copies rolled out (0 unless outcome is 5)
 robustness_successes     int32            copies that succeeded
 robustness               float64          success fraction of the copies; NaN when robustness_n = 0

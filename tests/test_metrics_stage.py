@@ -209,10 +209,14 @@ def test_rows_recomputed_by_hand(pipeline_run):
             geometry = object_geometry(read_object(shard(out, "objects", scene.object_names[k])))
             d = np.linalg.norm(geometry.mesh.vertices - geometry.center_of_mass, axis=1).max()
             assert m.column("torque_scale")[i].as_py() == pytest.approx(d, rel=1e-12)
-            if source == "rollout":  # world contacts at the end of closing, through the settled scene pose
+            if source == "rollout":  # world contacts at the end of closing, through the object's pose at that time
+                at_closing = column_array(r, "target_pose_closed", (4, 4))[i]
                 p, n = world_to_object(np.reshape(r.column("contact_points")[i].as_py(), (-1, 3)),
-                                       np.reshape(r.column("contact_normals")[i].as_py(), (-1, 3)), scene.poses[k])
+                                       np.reshape(r.column("contact_normals")[i].as_py(), (-1, 3)), at_closing)
                 f = np.array(r.column("contact_fingers")[i].as_py())
+                # independent truth: through that pose the contacts lie on the mesh (within contact penetration)
+                _, distance, _ = trimesh.proximity.closest_point(geometry.mesh, p)
+                assert distance.max() < 2e-3, distance
             else:  # the pads closed onto the mesh at the grasp's object-frame pose
                 (c,) = closing_contacts(geometry.mesh, column_array(g, "pose_object", (4, 4))[i], GRIPPER)
                 p, n, f = c.points, c.normals, c.finger

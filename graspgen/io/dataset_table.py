@@ -97,6 +97,8 @@ COLUMN_DOCS: dict[str, str] = {
     "contact_normals": "their normals, into the object, k*3 values",
     "contact_forces": "their normal forces, k values, N",
     "contact_fingers": "their finger: 0 left, 1 right, k values",
+    "target_pose_closed": "the target's pose (mesh frame to world) when closing ended, 4x4 row-major; NaN if not "
+                          "reached: it takes the contact columns to the object frame",
     "robustness_n": "perturbed copies rolled out (0 unless the outcome is 5)",
     "robustness_successes": "perturbed copies that succeeded",
     "robustness": "success fraction of the perturbed copies, in [0, 1]; NaN when robustness_n = 0",

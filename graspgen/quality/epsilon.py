@@ -580,13 +580,19 @@ def scene_metrics(
     normals = list_rows(rollouts, "contact_normals", 3, np.float64)
     fingers = list_rows(rollouts, "contact_fingers", 0, np.int8)
     has_rollout = [bool(simulated[i]) and bool(np.isin((0, 1), fingers[i]).all()) for i in range(n)]
+    closed_poses = (column_array(rollouts, "target_pose_closed", (4, 4))
+                    if "target_pose_closed" in rollouts.column_names else None)
     rays = raycast_contacts(grasps, [i for i in range(n) if not has_rollout[i]], geometries, gripper, ep)
     cols: dict[str, list] = {name: [] for name in SCHEMA.names[2:]}
     for i in range(n):
         geometry = geometries[names[i]]
         mu = float(scene.friction[index[i]]) if ep.friction is None else ep.friction
         rollout = (points[i], normals[i], fingers[i]) if simulated[i] else None
-        source, p, nrm, f = contact_set(rollout, scene.poses[index[i]], rays.get(i))
+        # The contacts were taken when closing ended: map them with the object's pose then, not the settled one
+        # (the jaws may have pushed it by millimetres and degrees).
+        at_closing = closed_poses[i] if closed_poses is not None and np.isfinite(closed_poses[i]).all() else None
+        source, p, nrm, f = contact_set(rollout, scene.poses[index[i]] if at_closing is None else at_closing,
+                                        rays.get(i))
         if source == "none":
             eps, label, pfc, robust = 0.0, math.nan, 0.0, 0.0
         else:

@@ -28,6 +28,9 @@ contact_points       list<float64>       finger-object contacts at the end of cl
 contact_normals      list<float64>       their normals, pointing into the object, k*3 values
 contact_forces       list<float64>       their normal forces, N, k values
 contact_fingers      list<int8>          0 left pad/finger, 1 right, k values
+target_pose_closed   float64[16]         the target's pose (mesh frame to world) when closing ended, 4x4
+                                         row-major; NaN if closing was not reached. The contacts above are in
+                                         the world at that instant: this pose takes them to the object frame
 ===================  ==================  ===================================================================
 """
 
@@ -40,7 +43,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from graspgen.io.arrow import column_array, variable_list
+from graspgen.io.arrow import column_array, fixed_list, variable_list
 from graspgen.io.scenes import SceneRecord, read_scene
 from graspgen.sim.grippers import attach_gripper, load_gripper
 from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, RolloutResult
@@ -76,6 +79,7 @@ SCHEMA = pa.schema(
         ("contact_normals", pa.list_(pa.float64())),
         ("contact_forces", pa.list_(pa.float64())),
         ("contact_fingers", pa.list_(pa.int8())),
+        ("target_pose_closed", pa.list_(pa.float64(), 16)),
     ]
 )
 
@@ -135,5 +139,10 @@ def results_table(grasps: pa.Table, results: list[RolloutResult | None]) -> pa.T
         "contact_normals": listed("contact_normals", pa.float64()),
         "contact_forces": listed("contact_forces", pa.float64()),
         "contact_fingers": listed("contact_fingers", pa.int8()),
+        "target_pose_closed": fixed_list(
+            np.array([np.ravel(r.target_pose_closed) if r is not None else np.full(16, np.nan) for r in results],
+                     dtype=np.float64).reshape(-1, 16),
+            16,
+        ),
     }
     return pa.table(arrays, schema=SCHEMA)
