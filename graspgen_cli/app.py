@@ -354,7 +354,7 @@ def evaluate(
     for warning in json.loads(table.schema.metadata[METADATA_KEY.encode()])["warnings"]:
         console.print(f"warning: {warning}", highlight=False, markup=False)
     counts = ", ".join(f"{name} {n}" for name, n in outcome_counts(table).items() if n)
-    mode = "support plane" if support else ("acronym protocol, free space" if protocol == "acronym" else "free space")
+    mode = "support plane" if support else f"{protocol or 'table'} protocol, free space"
     console.print(f"{len(table)} grasps ({mode}): {counts}", highlight=False)
     if reference is not None:
         agree = int(np.sum((table.column("outcome").to_numpy() == 5) == (np.asarray(reference) == 1)))

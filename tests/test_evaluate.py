@@ -85,7 +85,7 @@ def test_gen_evaluate_labels_acronym_grasps_in_input_order(acronym_file, tmp_pat
     result = gen("evaluate", "--grasps", acronym_file, "--mesh-root", tmp_path, "--gripper", "panda", "--out", out,
                  "--protocol", "table")
     assert result.exit_code == 0, result.output
-    assert "8 grasps (free space): no_contact_established 3, success 5" in result.output
+    assert "8 grasps (table protocol, free space): no_contact_established 3, success 5" in result.output
     assert "agreement with the file's success label: 8/8" in result.output
     table = pq.read_table(out)
     assert table.column("index").to_pylist() == list(range(len(GRASPS)))

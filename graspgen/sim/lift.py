@@ -1158,13 +1158,20 @@ class LiftSimulator:
             lift_gain = float(self._xipos[target][2]) - z_obj0
         if shake_mark is not None:
             motion_shaking = self._motion(target, shake_mark)
+        return self._result(code, phase, closed_width, lift_gain, (rel_t, rel_r), contacts, motion_closing,
+                            motion_shaking, pose_closed)
+
+    def _result(self, code, phase, closed_width, lift_gain, relative, contacts, motion_closing, motion_shaking,
+                pose_closed) -> RolloutResult:
+        """The :class:`RolloutResult` every protocol returns (``relative``: translation m, rotation rad)."""
         return RolloutResult(
             code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
             sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=lift_gain,
-            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
-            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
-            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
-            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)
+            rel_translation=relative[0], rel_rotation=relative[1], contact_points=contacts[0],
+            contact_normals=contacts[1], contact_forces=contacts[2], contact_fingers=contacts[3],
+            motion_closing_linear=motion_closing[0], motion_closing_angular=motion_closing[1],
+            motion_shaking_linear=motion_shaking[0], motion_shaking_angular=motion_shaking[1],
+            target_pose_closed=pose_closed)
 
     def _jaws_on(self, roles: np.ndarray) -> tuple[bool, bool]:
         """(left jaw touches the target, right jaw touches the target) now; no contact forces (cheap)."""
@@ -1228,13 +1235,8 @@ class LiftSimulator:
             rel_r = _angle(rel0[1], rel_R)
         if shake_mark is not None:
             motion_shaking = self._motion(target, shake_mark)
-        return RolloutResult(
-            code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
-            sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=nan,
-            rel_translation=rel_t, rel_rotation=rel_r, contact_points=contacts[0], contact_normals=contacts[1],
-            contact_forces=contacts[2], contact_fingers=contacts[3], motion_closing_linear=motion_closing[0],
-            motion_closing_angular=motion_closing[1], motion_shaking_linear=motion_shaking[0],
-            motion_shaking_angular=motion_shaking[1], target_pose_closed=pose_closed)
+        return self._result(code, phase, closed_width, nan, (rel_t, rel_r), contacts, motion_closing, motion_shaking,
+                            pose_closed)
 
     def _acronym_shake(self, pos, quat, R, target, check_held, observer) -> None:
         """``acronym`` (:class:`AcronymParams`): gravity on as configured, shake along the approach axis, then about
