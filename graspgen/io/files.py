@@ -71,7 +71,11 @@ def _write_dataset(group: h5py.Group, name: str, value: Any) -> None:
     kwargs: dict[str, Any] = {"track_times": False}
     if arr.size > _COMPRESS_ABOVE:
         kwargs.update(compression="gzip", compression_opts=4, shuffle=True, chunks=_chunks(arr.shape, arr.itemsize))
-    group.create_dataset(name, data=arr, **kwargs)
+    dataset = group.create_dataset(name, data=arr, **kwargs)
+    # A compressed chunk gets its place in the file when it leaves the chunk cache, i.e. when the dataset is
+    # flushed or closed. Closing waits for the garbage collector, so in some processes (a dask worker) two
+    # datasets' chunks landed in the other order: same content, other bytes. Flush now, in name order.
+    dataset.flush()
 
 
 def _chunks(shape: tuple[int, ...], itemsize: int, target: int = 1 << 18) -> tuple[int, ...]:
