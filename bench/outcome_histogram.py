@@ -40,7 +40,7 @@ def current_shards(project: Project, config: Any, stage: str) -> dict[str, dict[
     keys: dict[str, set[str]] = {}
     shards: dict[str, dict[str, Path]] = {}
     for s in topological_order(project.stages, [stage]):
-        planned = plan(s, s.params(config), upstream_view(out, s, keys, verify_hash=False))
+        planned = plan(s, s.params(config), upstream_view(out, s, keys, verify_hash=False), seed=config.run.seed)
         keys[s.name] = {p.key for p in planned}
         entries = committed(out, s.name, verify_hash=False)
         folder = stage_dir(out, s.name)

@@ -36,7 +36,8 @@ __all__ = [
 
 @dataclasses.dataclass(frozen=True)
 class RunConfig:
-    """How a run executes. None of these change what is computed, so none enter a content key."""
+    """How a run executes. Only ``seed`` changes what is computed (and enters the keys, when not 0); the others
+    change where and how fast, never a shard's bytes."""
 
     out: str = "out"
     """Output folder (relative to the current directory)."""
@@ -48,6 +49,10 @@ class RunConfig:
     """Scheduler address for ``backend: dask`` (e.g. ``tcp://10.0.0.5:8786``); None starts a LocalCluster."""
     cache_dir: str = ".cache"
     """Folder for caches that survive ``gen clean`` (CoACD decompositions), relative to the current directory."""
+    seed: int = 0
+    """Seed of the whole dataset: another integer gives every task other random draws (another dataset), the same
+    one the same bytes for any number of workers. It joins every task's seed key and content key only when not 0,
+    so 0 keeps the keys and bytes of runs made before the setting existed; changing it makes every shard stale."""
 
     def __post_init__(self) -> None:
         if self.jobs < 0:

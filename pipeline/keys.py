@@ -65,11 +65,14 @@ def key_parts(
     upstream: dict[str, dict[str, str]],
     input_hashes: dict[str, str],
     code: dict[str, str] | None = None,
+    seed: int = 0,
 ) -> dict[str, str]:
     """The hashed components of a task key, kept apart so ``gen status`` can say which one changed.
 
     ``code`` is the stage's :func:`pipeline.fingerprint.stage_fingerprint`: one part per source file
     (``code:<path>``) and per package (``package:<name>``), so a change names the file or the package.
+    ``seed`` is the run's seed (``run.seed``): a ``seed`` part when not 0, none at 0, so seed 0 gives the keys of
+    runs made before the seed existed. It reaches the seed key too (:func:`seed_key` keeps every part but code).
     """
     return {
         "scheme": str(KEY_SCHEME),
@@ -78,6 +81,7 @@ def key_parts(
         "task": sha256_text(canonical_json({"id": task_id, "payload": payload})),
         "upstream": sha256_text(canonical_json(upstream)),
         "inputs": sha256_text(canonical_json(input_hashes)),
+        **({"seed": str(int(seed))} if seed else {}),
         **(code or {}),
     }
 
@@ -89,6 +93,7 @@ _PART_REASONS = {
     "task": "the task definition changed",
     "upstream": "an upstream shard changed",
     "inputs": "an input file changed",
+    "seed": "run.seed changed",
 }
 
 
@@ -122,7 +127,8 @@ code): the draws of every task stay what they were then."""
 
 def seed_key(parts: dict[str, str], upstream_seeds: dict[str, dict[str, str]]) -> str:
     """The key a task's random generator is seeded from: its content key without the code and package parts, with
-    the upstream shards named by their own seed keys.
+    the upstream shards named by their own seed keys. The run's ``seed`` part (:func:`key_parts`) stays in, so
+    another ``run.seed`` gives every task other draws.
 
     A code change re-runs the stages that import the changed file (their content keys change) but with the same
     random draws, so old and new labels can be compared grasp by grasp (the same perturbations, the same scenes),

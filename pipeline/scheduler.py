@@ -151,8 +151,9 @@ def view_entries(view: Upstream, stage: str) -> dict[str, Entry]:
     return {tid: view.entry(stage, tid) for tid in view.ids(stage)}
 
 
-def plan(stage: Stage, params: Any, upstream: Upstream) -> list[PlannedTask]:
-    """The stage's tasks with their content keys."""
+def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> list[PlannedTask]:
+    """The stage's tasks with their content keys; ``seed`` is the run's (``config.run.seed``, see
+    :func:`pipeline.keys.key_parts`): 0 leaves the keys as they were before the seed existed."""
     tasks = stage.tasks(params, upstream)
     seen: dict[str, Task] = {}
     for t in tasks:
@@ -177,9 +178,9 @@ def plan(stage: Stage, params: Any, upstream: Upstream) -> list[PlannedTask]:
             upstream=upstream.keys(t.needs),
             input_hashes=hashes,
             code=code,
+            seed=seed,
         )
-        seed = seed_key(parts, upstream.seeds(t.needs))
-        planned.append(PlannedTask(t, task_key(parts), parts, seed))
+        planned.append(PlannedTask(t, task_key(parts), parts, seed_key(parts, upstream.seeds(t.needs))))
     return planned
 
 
@@ -467,12 +468,13 @@ class _StageRun:
 
 
 def _start_stage(
-    stage: Stage, params: Any, out: Path, retry_failed: bool, current: dict[str, set[str]]
+    stage: Stage, params: Any, out: Path, retry_failed: bool, current: dict[str, set[str]], seed: int = 0
 ) -> _StageRun:
-    """Plan a stage and sort its tasks into committed (skipped), remembered failures and pending."""
+    """Plan a stage (with the run's ``seed``) and sort its tasks into committed (skipped), remembered failures and
+    pending."""
     manifest = Manifest(stage_dir(out, stage.name))
     upstream = upstream_view(out, stage, current)
-    planned = plan(stage, params, upstream)
+    planned = plan(stage, params, upstream, seed=seed)
     report = StageReport(stage.name, total=len(planned))
     entries = manifest.entries()
     pending: list[PlannedTask] = []
@@ -505,7 +507,7 @@ def _run_wave(
     stage is published and reported as soon as its last task is committed, while the others go on.
     """
     start = time.perf_counter()
-    runs = [_start_stage(stage, stage.params(config), out, retry_failed, current) for stage in wave]
+    runs = [_start_stage(stage, stage.params(config), out, retry_failed, current, config.run.seed) for stage in wave]
     left = {r.stage.name: len(r.pending) for r in runs}
     for r in runs:
         notify("stage_start", stage=r.stage.name, total=len(r.planned), skipped=r.report.skipped,
@@ -673,7 +675,7 @@ def _status(project: Project, config: Any, targets: Sequence[str] | None) -> lis
             by_task[e.task] = e
         params = stage.params(config)
         after_run = {d: {**intact.get(d, {}), **redo.get(d, {})} for d in stage.inputs}
-        planned = plan(stage, params, Upstream(out, after_run))
+        planned = plan(stage, params, Upstream(out, after_run), seed=config.run.seed)
         current[stage.name] = {p.key for p in planned}
         st = StageStatus(stage.name, "done", total=len(planned))
         reasons: dict[str, list[str]] = {}

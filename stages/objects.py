@@ -1,6 +1,7 @@
 """Stage 1, ``objects``: turn mesh files into simulation-ready objects.
 
-One task per mesh file (the bundled set in ``assets/objects`` plus the globs in ``objects.paths``). Each task
+One task per mesh file (the bundled set in ``assets/objects``, the globs in ``objects.paths`` and the rows of the
+object manifest ``objects.manifest``: :func:`graspgen.io.objects.read_object_manifest`). Each task
 loads, fixes units, repairs, computes mass properties, decomposes into convex parts (CoACD, cached) and finds
 physics-checked stable poses (:mod:`graspgen.geometry.prepare`), then writes one HDF5 shard::
 
@@ -10,7 +11,12 @@ physics-checked stable poses (:mod:`graspgen.geometry.prepare`), then writes one
     /mass/center_of_mass (3,) m              /mass/inertia (3, 3) kg m^2 about the COM, mesh frame
     /stable_poses/transforms (n, 4, 4)       /stable_poses/probabilities (n,)
     attributes: name, source_file, source_sha256, scale, density, mass, volume, watertight,
-                from_convex_hull, repair_notes, warnings, params
+                from_convex_hull, repair_notes, warnings, params,
+                friction, category (only for an object whose manifest row gives them)
+
+A manifest row's own values (scale, mass or density, friction, category) enter its task's payload, so its key: a
+changed friction makes that object stale, not the others. An object without them has the payload (and the shard)
+it had before manifests existed.
 
 A broken file fails its own task with a message naming the file and the reason; the other objects go on.
 """
@@ -31,7 +37,7 @@ from graspgen.geometry.convex import CoacdParams
 from graspgen.geometry.prepare import prepare_object
 from graspgen.geometry.stable_poses import StablePoseParams
 from graspgen.io.files import write_h5
-from graspgen.io.objects import object_tree
+from graspgen.io.objects import object_tree, read_object_manifest
 from graspgen.validation import check
 from pipeline.config import to_dict
 from pipeline.errors import ConfigError
@@ -52,10 +58,16 @@ class ObjectsParams:
     """Glob patterns of extra mesh files (OBJ/STL/PLY/GLB/OFF), relative to the current directory."""
     bundled: bool = True
     """Include the bundled objects of ``assets/objects``."""
+    manifest: str | None = None
+    """Object manifest: a CSV or YAML file listing objects, one per row (relative to the current directory; the mesh
+    paths in it are relative to its own folder). Columns: ``path``, optional ``name`` (default: file stem),
+    ``scale`` (m per mesh unit; empty: ``scale`` below), ``mass`` (kg) or ``density`` (kg/m^3), ``friction``
+    (sliding friction in simulation; empty: drawn from ``scenes.friction``), ``category``. Null: none."""
     include: tuple[str, ...] = ()
-    """Keep only the objects with these names (file stems); empty keeps all."""
+    """Keep only the objects with these names (file stems, manifest names); empty keeps all."""
     scale: float | None = None
-    """Metres per mesh unit for every file; null detects millimetres/centimetres from the size, with a warning."""
+    """Metres per mesh unit for every file without its own (a manifest row's ``scale``); null detects
+    millimetres/centimetres from the size, with a warning."""
     min_extent: float = 0.005
     """Smallest plausible largest-extent after unit handling, m; smaller meshes are rejected."""
     max_extent: float = 0.5
@@ -63,13 +75,15 @@ class ObjectsParams:
     density: float = 700.0
     """Density for objects that have none of their own, kg/m^3 (bundled objects carry theirs in the catalog)."""
     densities: dict[str, float] = dataclasses.field(default_factory=dict)
-    """Per-object density overrides by name, kg/m^3."""
+    """Per-object density overrides by name, kg/m^3 (a manifest row's own ``mass`` or ``density`` wins)."""
     coacd: CoacdParams = dataclasses.field(default_factory=CoacdParams)
     """Convex decomposition settings (CoACD)."""
     stable_poses: StablePoseParams = dataclasses.field(default_factory=StablePoseParams)
     """Stable pose search and its physics check."""
 
     def __post_init__(self) -> None:
+        if self.manifest is not None:
+            check("manifest", bool(self.manifest.strip()), "be a file path (or null for none)", self.manifest)
         if self.scale is not None:
             check("scale", self.scale > 0, "be > 0 (or null to detect)", self.scale)
         check("min_extent", self.min_extent > 0, "be > 0", self.min_extent)
@@ -85,36 +99,115 @@ def catalog() -> dict[str, dict[str, Any]]:
     return {e["name"]: e for e in entries}
 
 
-def discover(params: ObjectsParams) -> list[tuple[str, Path, float]]:
-    """(name, path, density) of every object the params select, sorted by name.
+@dataclasses.dataclass(frozen=True)
+class ObjectSource:
+    """One object the ``objects`` stage makes, with the settings of its own (from the catalog or its manifest row)."""
+
+    name: str
+    """Object name: the task id (file stem, or the manifest's ``name``)."""
+    path: Path
+    """The mesh file."""
+    origin: str
+    """Where it was listed, for messages: ``bundled``, ``objects.paths`` or ``objects.manifest <file> row <n>``."""
+    density: float | None
+    """Density, kg/m^3; None when ``mass`` is given instead."""
+    mass: float | None = None
+    """Mass, kg (a manifest's ``mass``); None: from ``density``."""
+    scale: float | None = None
+    """The object's own metres per mesh unit (a manifest's ``scale``); None: ``objects.scale``."""
+    friction: float | None = None
+    """The object's own sliding friction coefficient (a manifest's ``friction``); None: none."""
+    category: str | None = None
+    """The object's category (a manifest's ``category``); None: none."""
+
+    def payload(self) -> dict[str, Any]:
+        """The task payload (it enters the key): ``density`` (or ``mass``) and the file suffix, plus the object's
+        own ``scale``, ``friction`` and ``category`` where it has them (so an object without any keeps its key)."""
+        out: dict[str, Any] = {"mass": self.mass} if self.mass is not None else {"density": self.density}
+        out["suffix"] = self.path.suffix.lower()
+        for field in ("scale", "friction", "category"):
+            if getattr(self, field) is not None:
+                out[field] = getattr(self, field)
+        return out
+
+
+def discover(params: ObjectsParams) -> list[tuple[str, Path, float | None]]:
+    """(name, path, density) of every object the params select, sorted by name; the density is None for a
+    manifest object given by its mass (:func:`object_sources` has everything).
 
     Raises
     ------
     ConfigError
-        A glob matching nothing, two files with one name, an ``include`` name that is not found.
+        See :func:`object_sources`.
     """
-    found: dict[str, tuple[Path, float]] = {}
+    return [(s.name, s.path, s.density) for s in object_sources(params)]
 
-    def add(name: str, path: Path, density: float) -> None:
-        if name in found and found[name][0] != path:
+
+def object_sources(params: ObjectsParams) -> list[ObjectSource]:
+    """Every object the params select (bundled, ``objects.paths``, ``objects.manifest``), sorted by name.
+
+    Raises
+    ------
+    ConfigError
+        A glob matching nothing, two files with one name, a manifest that cannot be used (the message names its
+        file, row and column), a manifest name already taken, an ``include`` name that is not found.
+    """
+    found: dict[str, ObjectSource] = {}
+
+    def add(source: ObjectSource) -> None:
+        name, path = source.name, source.path
+        if name in found and found[name].path != path:
             raise ConfigError(
-                f"objects.paths: two meshes are both named {name!r}: {found[name][0]} and {path}; rename one"
+                f"objects.paths: two meshes are both named {name!r}: {found[name].path} and {path}; rename one"
             )
-        found[name] = (path, params.densities.get(name, density))
+        found[name] = source
 
     if params.bundled:
         for name, entry in catalog().items():
-            add(name, ASSETS / entry["file"], float(entry["density"]))
+            density = params.densities.get(name, float(entry["density"]))
+            add(ObjectSource(name, ASSETS / entry["file"], "bundled", density))
     for path in user_meshes(params):
-        add(path.stem, path, params.density)
+        add(ObjectSource(path.stem, path, "objects.paths", params.densities.get(path.stem, params.density)))
+    for source in manifest_sources(params):
+        if source.name in found:
+            other = found[source.name]
+            raise ConfigError(
+                f"{source.origin}, column 'name': the name {source.name!r} is already taken by {other.path} "
+                f"({other.origin}); names must be unique: set another in the name column"
+            )
+        found[source.name] = source
     if params.include:
         missing = sorted(set(params.include) - set(found))
         if missing:
             raise ConfigError(f"objects.include: no object named {missing[0]!r}; available: {', '.join(sorted(found))}")
         found = {n: v for n, v in found.items() if n in params.include}
     if not found:
-        raise ConfigError("objects: no objects selected (bundled is false and paths is empty)")
-    return [(name, path, density) for name, (path, density) in sorted(found.items())]
+        raise ConfigError("objects: no objects selected (bundled is false, and paths and manifest are empty)")
+    return [found[name] for name in sorted(found)]
+
+
+def manifest_sources(params: ObjectsParams) -> list[ObjectSource]:
+    """The objects of ``objects.manifest`` (none when it is null), in file order: the row's own mass or density
+    (else ``objects.densities`` by name, else ``objects.density``), scale, friction and category.
+
+    Raises
+    ------
+    ConfigError
+        The manifest cannot be used: ``objects.manifest: <file>: row <n> (line <l>), column '<c>': why``.
+    """
+    if params.manifest is None:
+        return []
+    manifest = Path(params.manifest)
+    try:
+        entries = read_object_manifest(manifest)
+    except InputError as exc:
+        raise ConfigError(f"objects.manifest: {exc}") from None
+    sources = []
+    for e in entries:
+        density = None if e.mass is not None else e.density or params.densities.get(e.name, params.density)
+        origin = f"objects.manifest: {manifest}: row {e.row}"
+        sources.append(ObjectSource(e.name, e.path, origin, density, e.mass, e.scale, e.friction, e.category))
+    return sources
 
 
 def user_meshes(params: ObjectsParams) -> list[Path]:
@@ -165,8 +258,8 @@ class ObjectsStage(GraspStage):
 
     def tasks(self, params: ObjectsParams, upstream: Upstream) -> list[Task]:
         return [
-            Task(id=name, payload={"density": density, "suffix": path.suffix.lower()}, inputs=(str(path),))
-            for name, path, density in discover(params)
+            Task(id=source.name, payload=source.payload(), inputs=(str(source.path),))
+            for source in object_sources(params)
         ]
 
     def plan_warnings(self, params: ObjectsParams, upstream: Upstream) -> list[str]:
@@ -189,11 +282,13 @@ class ObjectsStage(GraspStage):
         ctx: RunContext,
     ) -> dict[str, Any]:
         path = Path(task.inputs[0])
+        payload = task.payload
         try:
             prepared = prepare_object(
                 path,
-                density=float(task.payload["density"]),
-                scale=params.scale,
+                density=payload.get("density"),
+                mass=payload.get("mass"),
+                scale=payload["scale"] if "scale" in payload else params.scale,
                 min_extent=params.min_extent,
                 max_extent=params.max_extent,
                 coacd=params.coacd,
@@ -203,7 +298,10 @@ class ObjectsStage(GraspStage):
             )
         except InputError as exc:
             raise InputError(_with_path(str(exc), path)) from None
-        write_h5(out, object_tree(task.id, path, prepared, to_dict(params)))
+        tree = object_tree(
+            task.id, path, prepared, to_dict(params), friction=payload.get("friction"), category=payload.get("category")
+        )
+        write_h5(out, tree)
         return {
             "mass": prepared.mass.mass,
             "parts": len(prepared.convex_parts),

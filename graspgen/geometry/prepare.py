@@ -8,7 +8,8 @@
    and fills small holes.
 3. :func:`~graspgen.geometry.units.normalize_units` brings the mesh to metres (explicit scale, or a documented
    guess) and rejects absurd sizes.
-4. :func:`~graspgen.geometry.mass.mass_properties` integrates mass, centre of mass and inertia for a given density.
+4. :func:`~graspgen.geometry.mass.mass_properties` integrates mass, centre of mass and inertia for a given density
+   (or for the density that gives a given mass).
 5. :func:`~graspgen.geometry.convex.convex_decomposition` splits the mesh into convex parts with CoACD (MuJoCo
    collides convex hulls), cached on disk.
 6. :func:`~graspgen.geometry.stable_poses.stable_poses` finds resting poses on a table and checks them in a short
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graspgen.errors import SettingsError
 from graspgen.geometry.convex import CoacdParams, _cached_convex_decomposition
 from graspgen.geometry.mass import MassProperties, _freeze, mass_properties
 from graspgen.geometry.mesh_io import load_mesh
@@ -83,7 +85,8 @@ class PreparedObject:
 def prepare_object(
     path: str | os.PathLike,
     *,
-    density: float,
+    density: float | None = None,
+    mass: float | None = None,
     scale: float | None = None,
     min_extent: float = 0.005,
     max_extent: float = 0.5,
@@ -99,7 +102,10 @@ def prepare_object(
     path
         Mesh file (see :func:`~graspgen.geometry.mesh_io.load_mesh`).
     density
-        Density in kg/m^3.
+        Density in kg/m^3. Give it or ``mass``, not both.
+    mass
+        Mass in kg: the density becomes ``mass / volume`` (the volume after repair and unit scaling, of the convex
+        hull for a mesh that is not watertight), so the object weighs exactly this.
     scale, min_extent, max_extent
         Unit handling, see :func:`~graspgen.geometry.units.normalize_units`.
     coacd
@@ -117,7 +123,12 @@ def prepare_object(
     InputError
         The file cannot be used; the message names it and says why.
     """
-    check_number("density", density, low=0.0, low_open=True)
+    if (density is None) == (mass is None):
+        raise SettingsError(f"density, mass: give exactly one, got density={density!r}, mass={mass!r}")
+    if mass is not None:
+        check_number("mass", mass, low=0.0, low_open=True)
+    else:
+        check_number("density", density, low=0.0, low_open=True)
     check_rng("rng", rng)
     coacd = CoacdParams() if coacd is None else coacd
     poses = StablePoseParams() if poses is None else poses
@@ -130,12 +141,15 @@ def prepare_object(
     )
     if unit_warning:
         warnings.append(unit_warning)
-    mass = mass_properties(mesh, density, watertight=report.watertight)
-    if mass.from_convex_hull:
+    if density is None:
+        unit = mass_properties(mesh, 1.0, watertight=report.watertight)
+        density = float(mass) / unit.volume
+    props = mass_properties(mesh, density, watertight=report.watertight)
+    if props.from_convex_hull:
         warnings.append(f"{path.name}: mesh is not watertight, mass and inertia taken from its convex hull")
     cache_dir = None if coacd_cache_dir is None else Path(coacd_cache_dir)
     parts = _cached_convex_decomposition(mesh, coacd, cache_dir)
-    transforms, probabilities = stable_poses(mesh, mass, parts, poses, rng)
+    transforms, probabilities = stable_poses(mesh, props, parts, poses, rng)
     return PreparedObject(
         name=path.stem,
         source_path=str(path),
@@ -143,7 +157,7 @@ def prepare_object(
         faces=np.ascontiguousarray(mesh.faces, dtype=np.int32),
         scale=used_scale,
         repair=report,
-        mass=mass,
+        mass=props,
         convex_parts=tuple(parts),
         stable_transforms=transforms,
         stable_probabilities=probabilities,

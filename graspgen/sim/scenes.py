@@ -5,7 +5,8 @@ One task per scene (``scene_000000``, ``scene_000001``, ...). Each task may read
 with the task's ``rng`` only:
 
 1. **Chooses objects**: k in ``objects_per_scene``, drawn from ``objects`` (or the whole library), weighted by
-   ``weights``; or exactly the listed objects with ``choice: fixed``. Friction per object from ``friction``.
+   ``weights``; or exactly the listed objects with ``choice: fixed``. Friction per object from ``friction``, except
+   for an object with its own (``ObjectRecord.friction``, from its manifest row), which keeps that one.
 2. **Places them** one by one: a stable pose drawn by its probability, a uniform yaw, x/y uniform (or Gaussian)
    in ``support.area``. A placement whose footprint (the union of its convex parts' x/y hulls) comes closer than
    ``gap`` to an earlier object or leaves the support (or hits the shelf board) is rejected; after ``max_tries``
@@ -208,7 +209,9 @@ class ScenesParams:
     gap: float = 0.005
     """Smallest clearance between two objects' footprints, and to the support's edges and walls, at placement, m."""
     friction: float | tuple[float, float] = 0.8
-    """Sliding friction of each object: a value, or [lo, hi] drawn uniformly per object."""
+    """Sliding friction of each object: a value, or [lo, hi] drawn uniformly per object. An object with its own
+    friction (``friction`` in its object manifest row: ``ObjectRecord.friction``) keeps its own; its draw is still
+    made, so the other objects' draws stay what they were."""
     max_tries: int = 100
     """Placements tried per object before it is left out of the scene."""
     max_scene_tries: int = 10
@@ -409,6 +412,9 @@ def place_objects(
             shift[:3, :3] = [[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]
             shift[:3, 3] = [xy[0], xy[1], params.settle.drop_height]
             friction = float(rng.uniform(flo, fhi)) if fhi > flo else flo
+            own = record.attrs.get("friction")  # the object's own (manifest) friction wins over the drawn one
+            if own is not None:
+                friction = float(own)
             placed.append((_Placement(name, s, shift @ record.stable_poses[s], friction), hulls))
             break
         else:
