@@ -1,4 +1,6 @@
-"""Build the convex collision pieces of the bundled Panda hand from ACRONYM's Franka collision mesh.
+"""Build the convex collision pieces of the bundled Panda hand from ACRONYM's Franka collision mesh, and those of the
+Robotiq 2F-85 (``robotiq_2f85_mesh``) from the airo-models collision meshes (:func:`robotiq`; README in
+``assets/grippers/robotiq_2f85``).
 
 Input: ``assets/grippers/panda/franka_gripper_collision_mesh.stl`` (vendored from github NVlabs/acronym,
 ``data/franka_gripper_collision_mesh.stl``, MIT, (c) 2020 NVIDIA Corporation; see the README beside it): the hand
@@ -96,7 +98,8 @@ def _convex_pieces(name: str, part: trimesh.Trimesh) -> list[trimesh.Trimesh]:
     return [_canonical(trimesh.Trimesh(v, f)) for v, f in parts]
 
 
-def main(out_dir: Path = PANDA) -> None:
+def panda(out_dir: Path = PANDA) -> None:
+    """The Panda's pieces (see the module docstring) into ``out_dir``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     mesh = trimesh.load(SOURCE, force="mesh")
@@ -135,6 +138,112 @@ def main(out_dir: Path = PANDA) -> None:
     _write_obj(out_dir / "pad.obj", [_canonical(pad)], note + "\nRight finger's pad (its tip, z >= the contact face).")
     for name in ("hand.obj", "finger.obj", "pad.obj"):
         print(f"wrote {out_dir / name}")
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Robotiq 2F-85
+# ---------------------------------------------------------------------------------------------------------------
+
+ROBOTIQ = HERE / "grippers" / "robotiq_2f85"
+AIRO = ROBOTIQ / "airo"
+"""The vendored airo-models 0.0.12 files (``airo_models/grippers/robotiq_2f_85``): URDF and collision OBJs."""
+MAX_WIDTH = 0.085
+"""Data sheet stroke (m): the pads' faces 85 mm apart when open."""
+# URDF numbers (robotiq_2f_85.urdf), in its ``base_link_inertia`` frame I (fingers closing along y, z approach):
+URDF_DRIVER_PIVOT = (0.0306011, 0.054904)
+"""(y, z) of the right outer knuckle's joint (``right_outer_knuckle_joint``)."""
+URDF_FOLLOWER_PIVOT = (0.0127, 0.06142)
+"""(y, z) of the right inner knuckle's joint (``right_inner_knuckle_joint``)."""
+URDF_OUTER_FINGER = (0.0315, -0.0041)
+"""(y, z) of the outer finger in the outer knuckle (``right_outer_finger_joint``, fixed)."""
+URDF_INNER_FINGER = (0.0061, 0.0471)
+"""(y, z) of the inner finger's joint in the outer finger (``right_inner_finger_joint``, mimic -1)."""
+URDF_PAD = (-0.0220203446692936, 0.03242)
+"""(y, z) of the pad box's centre in the inner finger (``right_inner_finger_pad_joint``)."""
+URDF_PAD_SIZE = (0.022, 0.00635, 0.0375)
+"""The pad box (x width, y thickness, z length) of ``right_inner_finger_pad``."""
+
+
+def _rot_x(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def _to_base(points_i: np.ndarray) -> np.ndarray:
+    """URDF ``base_link_inertia`` frame -> ``base_link`` (the hand base): turned -90 degrees about z (the URDF's
+    -1.57 rad, taken as exactly -pi/2 so that the two fingers stay mirror images), so I's y becomes x."""
+    p = np.atleast_2d(points_i)
+    return np.stack([p[:, 1], -p[:, 0], p[:, 2]], axis=1)
+
+
+def _yz(v) -> np.ndarray:
+    return np.array([0.0, v[0], v[1]])
+
+
+def robotiq_linkage(theta: float) -> dict[str, np.ndarray]:
+    """Points of the right finger's 4-bar linkage (base frame, m) at outer-knuckle angle ``theta`` (rad, 0 = the URDF's
+    zero, closing > 0): driver and follower pivots, the coupler (inner finger) joint, the pad centre and contact face
+    centre. The inner finger keeps its orientation (its joint mimics the knuckle with -1): a parallelogram."""
+    pivot = _yz(URDF_DRIVER_PIVOT)
+    crank = _yz(np.add(URDF_OUTER_FINGER, URDF_INNER_FINGER))
+    joint = pivot + _rot_x(theta) @ crank
+    pad = joint + _yz(URDF_PAD)
+    face = pad - [0.0, URDF_PAD_SIZE[1] / 2.0, 0.0]
+    out = {"pivot": pivot, "follower_pivot": _yz(URDF_FOLLOWER_PIVOT), "joint": joint, "pad": pad, "face": face}
+    return {k: _to_base(v)[0] for k, v in out.items()}
+
+
+def robotiq_angle(half_width: float) -> float:
+    """Outer-knuckle angle (rad) at which the right pad's contact face lies at ``x = half_width`` (m)."""
+    crank = np.add(URDF_OUTER_FINGER, URDF_INNER_FINGER)
+    radius, phi0 = float(np.hypot(*crank)), float(np.arctan2(crank[1], crank[0]))
+    x0 = URDF_DRIVER_PIVOT[0] + URDF_PAD[0] - URDF_PAD_SIZE[1] / 2.0  # face x minus the crank's x
+    return float(np.arccos((half_width - x0) / radius) - phi0)
+
+
+def _load_mm(name: str) -> np.ndarray:
+    return np.asarray(trimesh.load(AIRO / name, force="mesh").vertices, dtype=float) * 0.001
+
+
+def robotiq(out_dir: Path = ROBOTIQ) -> None:
+    """The 2F-85's convex pieces from the vendored airo-models collision meshes, posed open (pad faces
+    ``MAX_WIDTH`` apart), right finger (+x), in the hand-base frame (the URDF's ``base_link``; ``frame: base``):
+
+    * ``palm.obj``: the base housing (``robotiq_arg2f_base_link.obj``);
+    * ``driver.obj``: outer knuckle + outer finger (two pieces), which turn about the driver pivot;
+    * ``follower.obj``: the inner knuckle, which turns about the follower pivot;
+    * ``finger.obj``: the inner finger (the coupler, which translates: it carries the pad).
+
+    The pad is the URDF's box, written in the YAML. Each source mesh is convex already (its hull is the mesh)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    theta = robotiq_angle(MAX_WIDTH / 2.0)
+    R = _rot_x(theta)
+    pivot, follower = _yz(URDF_DRIVER_PIVOT), _yz(URDF_FOLLOWER_PIVOT)
+    joint = pivot + R @ _yz(np.add(URDF_OUTER_FINGER, URDF_INNER_FINGER))
+    parts = {
+        "palm": [_to_base(np.asarray(trimesh.load(AIRO / "robotiq_arg2f_base_link.obj", force="mesh").vertices))],
+        "driver": [_to_base(pivot + _load_mm("robotiq_arg2f_85_outer_knuckle.obj") @ R.T),
+                   _to_base(pivot + (_yz(URDF_OUTER_FINGER) + _load_mm("robotiq_arg2f_85_outer_finger.obj")) @ R.T)],
+        "follower": [_to_base(follower + _load_mm("robotiq_arg2f_85_inner_knuckle.obj") @ R.T)],
+        "finger": [_to_base(joint + _load_mm("robotiq_arg2f_85_inner_finger.obj"))],
+    }
+    points = robotiq_linkage(theta)
+    print(f"2F-85 open ({MAX_WIDTH * 1e3:.0f} mm): knuckle angle {theta:.6f} rad; "
+          + ", ".join(f"{k} {np.round(v, 7).tolist()}" for k, v in points.items()))
+    note = ("Generated by assets/make_grippers.py from the airo-models 0.0.12 Robotiq 2F-85 collision meshes\n"
+            "(airo/, MIT; README.md). Hand-base frame (the URDF's base_link), metres, right finger (+x), open\n"
+            f"({MAX_WIDTH * 1e3:.0f} mm between the pads); convex pieces (one 'o' group each).")
+    for name, pieces in parts.items():
+        meshes = [_canonical(trimesh.Trimesh(v, trimesh.convex.convex_hull(v).faces)) for v in pieces]
+        _write_obj(out_dir / f"{name}.obj", meshes, note + f"\n{name}")
+        print(f"wrote {out_dir / name}.obj")
+
+
+def main(out_dir: Path | None = None) -> None:
+    """Both grippers' pieces: into their folders, or into ``out_dir/panda`` and ``out_dir/robotiq_2f85``."""
+    panda(PANDA if out_dir is None else Path(out_dir) / "panda")
+    robotiq(ROBOTIQ if out_dir is None else Path(out_dir) / "robotiq_2f85")
 
 
 if __name__ == "__main__":

@@ -14,10 +14,14 @@ Printed per object and pooled: agreement (our success == FleX held), Cohen's kap
 the confusion of our outcome codes against FleX held/lost, and, among our successes, the AUC with which a score
 separates FleX-held from FleX-lost grasps (Mann-Whitney; 0.5 = no better than chance): ``epsilon`` (Ferrari-Canny
 of our closing contacts, pad model, the object's friction, torsional 0.005 m, :func:`graspgen.quality.epsilon.
-grasp_epsilon`) and, with ``--robustness N``, ``robustness`` (the success rate of N copies of the grasp perturbed by
-the robustness stage's default noise, 5 mm / 5 deg per axis, rolled out with the same protocol; skipped with a note
-otherwise: it costs N rollouts per success). Also the median motion of the object during closing and shaking,
-ours against FleX's (ACRONYM's ``object_motion_during_*``), for the grasps both call held.
+grasp_epsilon`) and, with ``--robustness N``, ``robustness`` and ``grip_robustness`` (the success rate of N copies of
+the grasp perturbed as the robustness stage perturbs them, its default noise: TCP 5 mm / 5 deg per axis, object mass
+log-normal 0.2, friction +-0.1; rolled out with the same protocol by the evaluate path itself,
+``evaluate_grasps(robustness=RobustnessParams(num_perturbations=N))``, i.e. ``gen evaluate --robustness N``, the
+draws seeded from the poses and settings; ``grip_robustness`` leaves out the copies stopped by a collision at
+placement or approach; skipped with a note otherwise: it costs N rollouts per success). Also the median motion of
+the object during closing and shaking, ours against FleX's (ACRONYM's ``object_motion_during_*``), for the grasps
+both call held.
 
 ``--speed``: rollouts per second of each protocol run on the calibration mug in one process (one core), from the
 slope of two timed evaluations (300 and 10 grasps, so preparing the mesh and compiling the model do not count),
@@ -60,7 +64,7 @@ sys.path.insert(0, str(ROOT))
 from graspgen.evaluate import METADATA_KEY, EvaluateParams, evaluate_grasps  # noqa: E402
 from graspgen.io.acronym import read_acronym  # noqa: E402
 from graspgen.quality.epsilon import grasp_epsilon  # noqa: E402
-from graspgen.quality.robustness import RobustnessParams, perturbed_poses  # noqa: E402
+from graspgen.quality.robustness import RobustnessParams  # noqa: E402
 from graspgen.sim.grippers import build_gripper, load_gripper  # noqa: E402
 from graspgen.sim.lift import OUTCOME_NAMES, AcronymParams, GraspGenParams, LiftParams  # noqa: E402
 
@@ -160,11 +164,15 @@ def auc(scores: np.ndarray, positive: np.ndarray) -> float:
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def evaluate(case: Case, lift: LiftParams, args, T: np.ndarray | None = None, friction: float | None = None):
+def evaluate(case: Case, lift: LiftParams, args, T: np.ndarray | None = None, friction: float | None = None,
+             robustness: int = 0):
+    """``evaluate_grasps`` on the case's object; ``robustness`` > 0 adds that many perturbed copies per success
+    (the robustness stage's default noise) and the robustness columns."""
     params = EvaluateParams(lift=lift, friction=case.friction if friction is None else friction, mass=case.mass,
                             density=case.density if case.density is not None else 700.0)
+    noise = RobustnessParams(num_perturbations=robustness) if robustness else None
     return evaluate_grasps(case.mesh, case.scale, case.T if T is None else T, None, args.gripper, params,
-                           jobs=args.jobs, cache_dir=args.cache_dir)
+                           jobs=args.jobs, cache_dir=args.cache_dir, robustness=noise)
 
 
 def epsilons(table, friction: float) -> np.ndarray:
@@ -181,25 +189,6 @@ def epsilons(table, friction: float) -> np.ndarray:
     return out
 
 
-def robustness(case: Case, table, lift: LiftParams, args) -> np.ndarray:
-    """Success rate of ``args.robustness`` perturbed copies of each of our successes (NaN elsewhere)."""
-    noise = RobustnessParams()
-    codes = table.column("outcome").to_numpy()
-    out = np.full(len(table), math.nan)
-    ok = np.flatnonzero(codes == 5)
-    if len(ok) == 0:
-        return out
-    rng = np.random.default_rng(0)
-    copies = []
-    for i in ok:
-        z = rng.standard_normal((args.robustness, 6))
-        copies.append(perturbed_poses(case.T[i], z[:, :3] * noise.translation_sigma, z[:, 3:] * noise.rotation_sigma))
-    res = evaluate(case, lift, args, T=np.concatenate(copies))
-    success = (res.column("outcome").to_numpy() == 5).reshape(len(ok), args.robustness)
-    out[ok] = success.mean(axis=1)
-    return out
-
-
 def summarise(case: Case, table, lift: LiftParams, args) -> dict:
     codes = table.column("outcome").to_numpy()
     ours, flex = codes == 5, case.flex == 1
@@ -212,10 +201,13 @@ def summarise(case: Case, table, lift: LiftParams, args) -> dict:
         "confusion": confusion, "auc_epsilon": auc(eps[ours], flex[ours]),
         "codes": codes.tolist(), "flex": case.flex.tolist(), "epsilon": eps.tolist(),
     }
-    if args.robustness:
-        rob = robustness(case, table, lift, args)
-        row["auc_robustness"] = auc(rob[ours], flex[ours])
-        row["robustness"] = [None if math.isnan(v) else float(v) for v in rob]
+    if args.robustness:  # from the evaluate path's own columns (NaN where our nominal outcome is not success)
+        for key in ("robustness", "grip_robustness"):
+            values = table.column(key).to_numpy(zero_copy_only=False)
+            known = ours & np.isfinite(values)
+            row[f"auc_{key}"] = auc(values[known], flex[known])
+            row[key] = [None if math.isnan(v) else float(v) for v in values]
+        row["robustness_copies"] = int(np.sum(table.column("robustness_n").to_numpy()))
     both = ours & flex
     for phase in ("closing", "shaking"):
         for kind in ("linear", "angular"):
@@ -242,9 +234,11 @@ def pooled(rows: list[dict]) -> dict:
         "auc_epsilon_mean": float(np.nanmean([r["auc_epsilon"] for r in rows])),
     }
     if all("robustness" in r for r in rows):
-        rob = np.array([np.nan if v is None else v for r in rows for v in r["robustness"]])
-        out["auc_robustness"] = auc(rob[ours], flex[ours])
-        out["auc_robustness_mean"] = float(np.nanmean([r["auc_robustness"] for r in rows]))
+        for key in ("robustness", "grip_robustness"):
+            values = np.array([np.nan if v is None else v for r in rows for v in r[key]])
+            known = ours & np.isfinite(values)
+            out[f"auc_{key}"] = auc(values[known], flex[known])
+            out[f"auc_{key}_mean"] = float(np.nanmean([r[f"auc_{key}"] for r in rows]))
     return out
 
 
@@ -252,7 +246,7 @@ def run_protocol(cases: list[Case], lift: LiftParams, args, label: str) -> dict:
     rows = []
     for case in cases:
         t0 = time.perf_counter()
-        table = evaluate(case, lift, args)
+        table = evaluate(case, lift, args, robustness=args.robustness)
         rows.append(summarise(case, table, lift, args))
         print(f"  [{label}] {case.name}: {len(table)} grasps in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return {"objects": rows, "pooled": pooled(rows)}
@@ -363,19 +357,20 @@ def fmt(x: float, digits: int = 3) -> str:
 def print_protocol(label: str, result: dict, robust: bool) -> None:
     print(f"\n### {label}\n")
     head = "| object | n | agreement | kappa | our success | FleX success | AUC epsilon |"
-    print(head + (" AUC robustness |" if robust else ""))
-    print("|" + " --- |" * (7 + robust))
+    print(head + (" AUC robustness | AUC grip robustness |" if robust else ""))
+    print("|" + " --- |" * (7 + 2 * robust))
     for r in result["objects"] + [result["pooled"]]:
         cells = [r["object"], str(r["n"]), fmt(r["agreement"]), fmt(r["kappa"], 2), fmt(r["our_success"]),
                  fmt(r["flex_success"]), fmt(r["auc_epsilon"], 2)]
         if robust:
-            cells.append(fmt(r.get("auc_robustness"), 2))
+            cells += [fmt(r.get("auc_robustness"), 2), fmt(r.get("auc_grip_robustness"), 2)]
         print("| " + " | ".join(cells) + " |")
     if not robust:
         print("\nAUC robustness: not computed (run with --robustness N: N perturbed rollouts per success).")
     p = result["pooled"]
     print(f"\npooled AUC epsilon: {fmt(p['auc_epsilon'], 2)} (mean of per-object AUCs {fmt(p['auc_epsilon_mean'], 2)})"
-          + (f"; robustness: {fmt(p['auc_robustness'], 2)} (mean {fmt(p['auc_robustness_mean'], 2)})"
+          + (f"; robustness: {fmt(p['auc_robustness'], 2)} (mean {fmt(p['auc_robustness_mean'], 2)}); grip "
+             f"robustness: {fmt(p['auc_grip_robustness'], 2)} (mean {fmt(p['auc_grip_robustness_mean'], 2)})"
              if "auc_robustness" in p else ""))
     print("\nconfusion (pooled): our outcome vs FleX\n\n| our outcome | n | FleX held | FleX lost | FleX held % |")
     print("| --- | ---: | ---: | ---: | ---: |")

@@ -64,11 +64,35 @@ motion_shaking_angular float64       object rotation during the shake, rad
 
 Object frame: the scaled mesh frame of the input file. Contacts are mapped back from the world with the object's
 pose at the end of closing (when they were recorded), so they are exact even where the fingers pushed the object.
+
+Robustness (``robustness=RobustnessParams(...)``, ``gen evaluate --robustness N``): every grasp whose nominal
+outcome is 5 is rolled out again as ``num_perturbations`` perturbed copies, by the robustness stage's own function
+(:func:`graspgen.quality.robustness.grasp_robustness`, so the same perturbation model: TCP pose noise in the TCP
+frame, the object's mass, centre of mass and friction, and with ``object_noise`` its planar pose), in the same world
+and protocol as the nominal rollout. The draws are made up front from one generator, ``(n, num_perturbations,
+DRAWS_PER_COPY)`` standard normals in input order (for every grasp, successful or not), as the stage does; the
+generator is the ``rng`` given, else seeded from a SHA-256 of the poses, widths and settings (:func:`content_seed`;
+the seed is in the metadata). The copies of a grasp depend only on its draws, so the labels are the same for any
+``jobs``. Extra columns (:data:`ROBUSTNESS_FIELDS`; grasps that did not succeed get ``robustness_n = 0``, NaN
+labels and no copies):
+
+===================  ==============  =====================================================================
+robustness_n         int32           perturbed copies rolled out (0 unless the nominal outcome is 5)
+robustness_successes int32           copies with outcome 5
+robustness           float64         robustness_successes / robustness_n; NaN when robustness_n = 0
+robustness_lo/_hi    float64         its Wilson score 95% interval
+grip_robustness      float64         successes / copies that reached the grip (outcome 3-5: collisions at
+                                     placement or during the approach left out); NaN when none did
+grip_robustness_lo   float64         its Wilson score 95% interval (``_lo``, ``_hi``)
+/_hi
+copy_outcomes        list<int8>      outcome code of every copy, robustness_n values
+===================  ==============  =====================================================================
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -80,21 +104,23 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import trimesh
 
-from graspgen.errors import InputError, SettingsError
+from graspgen.errors import GraspGenError, InputError, SettingsError
 from graspgen.geometry.contacts import closing_contacts
 from graspgen.geometry.convex import CoacdParams
 from graspgen.geometry.prepare import prepare_object
 from graspgen.geometry.stable_poses import StablePoseParams
+from graspgen.io.acronym import read_acronym
 from graspgen.io.arrow import fixed_list, variable_list
+from graspgen.quality.epsilon import EpsilonParams, ObjectGeometry
+from graspgen.quality.robustness import DRAWS_PER_COPY, GraspRobustness, RobustnessParams, grasp_robustness
 from graspgen.sim.grippers import attach_gripper, load_gripper
-from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, RolloutResult
+from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, Outcome, RolloutResult
 from graspgen.sim.scene_model import (
-    GROUND_NAME,
-    SUPPORT_PREFIX,
     PlacedObject,
     SettleParams,
     SupportParams,
     build_scene_spec,
+    free_space_spec,
     object_body_name,
     object_poses,
     settle,
@@ -105,10 +131,16 @@ __all__ = [
     "CHEAP_COACD",
     "METADATA_KEY",
     "OBJECT_NAME",
+    "ROBUSTNESS_FIELDS",
     "SCHEMA",
     "EvaluateParams",
+    "EvaluationWorld",
+    "GraspFile",
+    "content_seed",
     "evaluate_grasps",
+    "evaluation_world",
     "outcome_counts",
+    "read_grasp_file",
     "read_pose_table",
 ]
 
@@ -150,6 +182,19 @@ SCHEMA = pa.schema(
     ]
 )
 """The output table's schema (see the module docstring)."""
+
+ROBUSTNESS_FIELDS = (
+    pa.field("robustness_n", pa.int32()),
+    pa.field("robustness_successes", pa.int32()),
+    pa.field("robustness", pa.float64()),
+    pa.field("robustness_lo", pa.float64()),
+    pa.field("robustness_hi", pa.float64()),
+    pa.field("grip_robustness", pa.float64()),
+    pa.field("grip_robustness_lo", pa.float64()),
+    pa.field("grip_robustness_hi", pa.float64()),
+    pa.field("copy_outcomes", pa.list_(pa.int8())),
+)
+"""The columns appended to :data:`SCHEMA` with ``robustness`` (see the module docstring)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -225,6 +270,102 @@ def read_pose_table(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     return T, widths
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class GraspFile:
+    """The grasps of one object read from a file by :func:`read_grasp_file`: what :func:`evaluate_grasps` takes."""
+
+    kind: str
+    """``acronym`` (an ACRONYM HDF5 file) or ``parquet`` (a table of TCP poses)."""
+    T_tcp: np.ndarray
+    """``(n, 4, 4) float64`` TCP poses in the object's scaled mesh frame, m."""
+    widths: np.ndarray | None
+    """``(n,) float64`` pad separations, m (a Parquet ``width`` column); None when the file has none."""
+    mesh_path: Path
+    """The object's mesh file."""
+    scale: float | None
+    """Metres per mesh unit (ACRONYM's ``object/scale`` unless overridden); None: detect from the size."""
+    params: EvaluateParams
+    """The params given, with the file's object mass, density and friction (ACRONYM) or the friction given."""
+    reference: np.ndarray | None
+    """``(n,) int8`` the file's own success label (ACRONYM's ``flex/object_in_gripper``); None when absent."""
+    gripper: str | None
+    """Our name of the file's gripper (ACRONYM's ``gripper/type``, e.g. ``panda``); None for Parquet."""
+
+
+def read_grasp_file(
+    path: str | Path,
+    params: EvaluateParams | None = None,
+    *,
+    mesh_root: str | Path | None = None,
+    mesh: str | Path | None = None,
+    scale: float | None = None,
+    friction: float | None = None,
+) -> GraspFile:
+    """Read an ACRONYM file (``.h5``, ``.hdf5``) or a Parquet table of TCP poses (``.parquet``, :func:`read_pose_table`)
+    with its mesh: what ``gen evaluate`` and ``gen show rollout --grasps`` label.
+
+    Parameters
+    ----------
+    path : str or Path
+        The grasp file.
+    params : EvaluateParams, optional
+        Settings to start from (default ``EvaluateParams()``); ACRONYM's ``object/mass``, ``density`` and
+        ``friction`` replace theirs.
+    mesh_root : str or Path, optional
+        Folder ACRONYM's ``object/file`` is relative to (default: the current directory); for Parquet, the folder a
+        relative ``mesh`` is relative to.
+    mesh : str or Path, optional
+        The mesh file; needed with Parquet; replaces ACRONYM's ``object/file``.
+    scale : float, optional
+        Metres per mesh unit; default ACRONYM's ``object/scale``, for Parquet detected from the size.
+    friction : float, optional
+        The object's sliding friction; default ACRONYM's ``object/friction``, else ``params.friction``.
+
+    Raises
+    ------
+    graspgen.errors.InputError
+        Missing or unreadable file, unknown suffix, Parquet without ``mesh``, mesh not found; the message names the
+        file.
+    """
+    path = Path(path)
+    params = EvaluateParams() if params is None else params
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        raise InputError(f"{path}: grasp file not found")
+    if suffix in (".h5", ".hdf5"):
+        acr = read_acronym(path)
+        try:
+            T = acr.tcp_poses()
+            gripper = acr.gripper
+        except GraspGenError as exc:
+            raise InputError(f"{path}: gripper/type {acr.gripper_type!r}: {exc}") from None
+        root = Path(mesh_root) if mesh_root is not None else Path.cwd()
+        mesh_path = Path(mesh) if mesh is not None else root / acr.object_file
+        if not mesh_path.is_file():
+            how = "--mesh" if mesh is not None else f"object/file {acr.object_file!r} under --mesh-root {root}"
+            raise InputError(f"{path}: mesh not found: {mesh_path} ({how})")
+        fric = friction if friction is not None else acr.object_friction
+        params = dataclasses.replace(
+            params, friction=fric if fric is not None else params.friction, mass=acr.object_mass,
+            density=acr.object_density if acr.object_density is not None else params.density)
+        return GraspFile("acronym", T, None, mesh_path, acr.object_scale if scale is None else scale, params,
+                         acr.success, gripper)
+    if suffix == ".parquet":
+        if mesh is None:
+            raise InputError(f"{path}: a Parquet grasp file needs --mesh (the mesh its poses refer to)")
+        T, widths = read_pose_table(path)
+        mesh_path = Path(mesh) if mesh_root is None or Path(mesh).is_absolute() else Path(mesh_root) / mesh
+        if not mesh_path.is_file():
+            raise InputError(f"{path}: mesh not found: {mesh_path} (--mesh)")
+        if friction is not None:
+            params = dataclasses.replace(params, friction=friction)
+        return GraspFile("parquet", T, widths, mesh_path, scale, params, None, None)
+    raise InputError(
+        f"{path}: unsupported grasp file format {path.suffix or '(none)'!r}; expected an ACRONYM HDF5 "
+        "file (.h5, .hdf5) or a Parquet table of poses (.parquet)"
+    )
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # The world
 # ---------------------------------------------------------------------------------------------------------------
@@ -243,12 +384,10 @@ class _World:
 
 def _spec(obj: PlacedObject, support: SupportParams | None, lift: LiftParams):
     """The object (and table) as an MjSpec; without a support, the ground and table are removed: free space."""
-    spec = build_scene_spec([obj], support or SupportParams(), lift.physics_options((0.0, 0.0, -9.81)))
+    physics = lift.physics_options((0.0, 0.0, -9.81))
     if support is None:
-        for geom in list(spec.geoms):
-            if geom.name == GROUND_NAME or geom.name.startswith(SUPPORT_PREFIX):
-                spec.delete(geom)
-    return spec
+        return free_space_spec(obj, physics)
+    return build_scene_spec([obj], support, physics)
 
 
 def _settled_pose(obj: PlacedObject, support: SupportParams, lift: LiftParams) -> np.ndarray:
@@ -270,6 +409,51 @@ def _roll_out_chunk(world: _World, T_world: np.ndarray, widths: np.ndarray) -> l
     return [simulator.rollout(T, float(w), body) for T, w in zip(T_world, widths)]
 
 
+def _world_spec(world: _World, visual: tuple[np.ndarray, np.ndarray] | None = None) -> mujoco.MjSpec:
+    """The world as an MjSpec with the gripper attached; ``visual`` ``(vertices (v, 3) m, faces (f, 3))`` adds the
+    object's visual mesh (drawn only: the physics and the joints are those of the model without it)."""
+    obj = world.obj if visual is None else dataclasses.replace(world.obj, visual=visual)
+    spec = _spec(obj, world.support, world.lift)
+    attach_gripper(spec, load_gripper(world.gripper))
+    return spec
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class EvaluationWorld:
+    """The world :func:`evaluate_grasps` rolls grasps out in and the grasps in it (:func:`evaluation_world`): plain
+    arrays and settings, cheap to pickle to workers (a compiled model is not)."""
+
+    world: _World
+    """The object (placed), the support (None: free space), the gripper and the protocol."""
+    T_tcp: np.ndarray
+    """``(n, 4, 4) float64`` the TCP poses in the object's scaled mesh frame, m."""
+    T_world: np.ndarray
+    """``(n, 4, 4) float64`` the same poses in the world (the object's pose times ``T_tcp``), m."""
+    width: np.ndarray
+    """``(n,) float64`` the pad separation each grasp opens the jaws for (before the margin), m."""
+    source: tuple[str, ...]
+    """Where each width came from: ``input``, ``raycast``, ``open`` or ``protocol``."""
+    geometry: ObjectGeometry
+    """The prepared (scaled, repaired) mesh, its centre of mass (m) and torque scale (m), object frame."""
+    info: dict[str, Any]
+    """The output table's metadata (:data:`METADATA_KEY`)."""
+
+    @property
+    def target_body(self) -> str:
+        """The object's body name in the model (``obj/0_object``)."""
+        return object_body_name(0, self.world.obj.name)
+
+    def simulator(self) -> LiftSimulator:
+        """The world compiled with the gripper, in a fresh model: rolls a grasp out as :func:`evaluate_grasps` did."""
+        return LiftSimulator(_world_spec(self.world).compile(), self.world.lift)
+
+    def visual_spec(self) -> mujoco.MjSpec:
+        """The world with the gripper and the object's visual mesh (for rendering); its joints are the simulator's,
+        so a recorded ``qpos`` poses it."""
+        mesh = self.geometry.mesh
+        return _world_spec(self.world, (np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)))
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Evaluation
 # ---------------------------------------------------------------------------------------------------------------
@@ -287,6 +471,8 @@ def evaluate_grasps(
     protocol: str | None = None,
     jobs: int = 1,
     cache_dir: str | Path | None = None,
+    robustness: RobustnessParams | None = None,
+    rng: np.random.Generator | None = None,
 ) -> pa.Table:
     """Roll out grasps given as TCP poses on one object; one output row per grasp, in input order.
 
@@ -314,11 +500,17 @@ def evaluate_grasps(
         Worker processes (contiguous chunks of grasps; each builds its own model); <= 0 means one per core.
     cache_dir : str or Path, optional
         Folder of the CoACD cache (``<cache_dir>/coacd``, shared with the objects stage); None: no cache.
+    robustness : RobustnessParams, optional
+        Also roll out ``robustness.num_perturbations`` perturbed copies of every successful grasp and add
+        :data:`ROBUSTNESS_FIELDS` (module docstring); ``robustness.radius`` is not computed. None: no copies.
+    rng : numpy.random.Generator, optional
+        Generator of the copies' draws (``robustness`` only); None: seeded by :func:`content_seed` from the poses,
+        widths and settings.
 
     Returns
     -------
     pyarrow.Table
-        :data:`SCHEMA`, ``n`` rows in input order.
+        :data:`SCHEMA` (plus :data:`ROBUSTNESS_FIELDS` with ``robustness``), ``n`` rows in input order.
 
     Raises
     ------
@@ -328,10 +520,72 @@ def evaluate_grasps(
         Unknown gripper (the message lists the choices) or protocol; ``acronym`` or ``graspgen`` with
         ``free_space=False``.
     ValueError
-        Poses or widths of the wrong shape, non-finite, or not rigid (the message names the first bad index).
+        Poses or widths of the wrong shape, non-finite, or not rigid (the message names the first bad index);
+        ``robustness`` or ``rng`` of the wrong type.
     """
     from joblib import Parallel, delayed
 
+    if robustness is not None and not isinstance(robustness, RobustnessParams):
+        raise ValueError(f"robustness: expected RobustnessParams or None, got {type(robustness).__name__}")
+    if rng is not None and not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: expected numpy.random.Generator or None, got {type(rng).__name__}")
+    ew = evaluation_world(mesh_path, scale, T_tcp, widths, gripper, params, free_space=free_space,
+                          protocol=protocol, cache_dir=cache_dir)
+    world, T_world, width = ew.world, ew.T_world, ew.width
+    n = len(T_world)
+    jobs = (os.cpu_count() or 1) if jobs <= 0 else int(jobs)
+    chunks = [c for c in np.array_split(np.arange(n), max(1, min(jobs, n))) if len(c)]
+    parts = Parallel(n_jobs=len(chunks) or 1)(
+        delayed(_roll_out_chunk)(world, T_world[c], width[c]) for c in chunks
+    )
+    results = [r for part in parts for r in part]
+    table = _table(ew.T_tcp, width, list(ew.source), results, world.obj.pose)
+    info = dict(ew.info)
+    if robustness is not None:
+        robustness = dataclasses.replace(robustness, radius=False)
+        if rng is None:
+            seed = content_seed(ew, robustness)
+            info["robustness_seed"] = seed
+            rng = np.random.default_rng(seed)
+        info["robustness"] = dataclasses.asdict(robustness)
+        draws = rng.standard_normal((n, robustness.num_perturbations, DRAWS_PER_COPY))
+        ok = np.flatnonzero(table.column("outcome").to_numpy() == Outcome.SUCCESS)
+        rows: list[GraspRobustness] = []
+        if len(ok):
+            groups = [c for c in np.array_split(ok, min(jobs, len(ok))) if len(c)]
+            found = Parallel(n_jobs=len(groups))(
+                delayed(_robustness_chunk)(world, ew.geometry, T_world[c], width[c], draws[c], robustness)
+                for c in groups
+            )
+            rows = [r for part in found for r in part]
+        for field, column in zip(ROBUSTNESS_FIELDS, _robustness_columns(n, ok, rows)):
+            table = table.append_column(field, column)
+    return table.replace_schema_metadata({METADATA_KEY: json.dumps(info, sort_keys=True)})
+
+
+def evaluation_world(
+    mesh_path: str | Path,
+    scale: float | None,
+    T_tcp: Any,
+    widths: Any,
+    gripper: str,
+    params: EvaluateParams | None = None,
+    *,
+    free_space: bool = True,
+    protocol: str | None = None,
+    cache_dir: str | Path | None = None,
+) -> EvaluationWorld:
+    """The world :func:`evaluate_grasps` rolls the grasps out in, with the grasps placed in it, without rolling any
+    out: the object prepared, opened widths chosen, settled on the table (``free_space=False``).
+
+    Parameters and errors as :func:`evaluate_grasps` (less ``jobs`` and ``robustness``). Use it to roll one grasp
+    out again exactly as :func:`evaluate_grasps` did (:meth:`EvaluationWorld.simulator`, e.g. to film it:
+    :func:`graspgen.viz.evaluate_movie.evaluated_rollout_movie`).
+
+    Returns
+    -------
+    EvaluationWorld
+    """
     params = EvaluateParams() if params is None else params
     if not isinstance(params, EvaluateParams):
         raise ValueError(f"params: expected EvaluateParams, got {type(params).__name__}")
@@ -376,23 +630,68 @@ def evaluate_grasps(
         support = params.support
         obj = dataclasses.replace(obj, pose=_settled_pose(
             dataclasses.replace(obj, pose=prepared.stable_transforms[0]), support, lift))
-    T_world = obj.pose @ T
     world = _World(obj=obj, support=support, gripper=str(gripper), lift=lift)  # a name or a file path
-
-    jobs = (os.cpu_count() or 1) if jobs <= 0 else int(jobs)
-    chunks = [c for c in np.array_split(np.arange(n), max(1, min(jobs, n))) if len(c)]
-    parts = Parallel(n_jobs=len(chunks) or 1)(
-        delayed(_roll_out_chunk)(world, T_world[c], width[c]) for c in chunks
-    )
-    results = [r for part in parts for r in part]
-    table = _table(T, width, source, results, obj.pose)
     com = np.asarray(prepared.mass.center_of_mass, dtype=np.float64)
-    torque_scale = float(np.sqrt(np.max(np.sum((np.asarray(prepared.vertices) - com) ** 2, axis=1))))
+    vertices = np.asarray(prepared.vertices, dtype=np.float64)
+    torque_scale = float(np.sqrt(np.max(np.sum((vertices - com) ** 2, axis=1))))
+    geometry = ObjectGeometry(trimesh.Trimesh(vertices, np.asarray(prepared.faces), process=False), com, torque_scale)
     info = {"mesh": str(mesh_path), "scale": prepared.scale, "gripper": spec.name, "free_space": bool(free_space),
             "protocol": lift.protocol, "lift": lift.to_dict(), "mass": float(mass), "friction": params.friction,
             "center_of_mass": com.tolist(), "torque_scale": torque_scale, "convex_parts": len(prepared.convex_parts),
             "object_pose": obj.pose.tolist(), "warnings": list(prepared.warnings)}
-    return table.replace_schema_metadata({METADATA_KEY: json.dumps(info, sort_keys=True)})
+    return EvaluationWorld(world=world, T_tcp=T, T_world=obj.pose @ T, width=np.asarray(width, dtype=np.float64),
+                           source=tuple(source), geometry=geometry, info=info)
+
+
+def content_seed(world: EvaluationWorld, robustness: RobustnessParams) -> int:
+    """Seed (a 64-bit integer) of the robustness draws when no generator is given: the first 8 bytes of a SHA-256 of
+    the grasps' poses and widths (float64 bytes) and of the settings (the object's mass, friction, centre of mass
+    and pose, the gripper, the protocol and its settings, the robustness settings; canonical JSON). The mesh path
+    and the preparation's warnings do not enter: the same grasps and settings give the same draws wherever the
+    file lies."""
+    settings = {k: v for k, v in world.info.items() if k not in ("mesh", "warnings")}
+    settings["robustness"] = dataclasses.asdict(robustness)
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(world.T_tcp, dtype="<f8").tobytes())
+    digest.update(np.ascontiguousarray(world.width, dtype="<f8").tobytes())
+    digest.update(json.dumps(settings, sort_keys=True, default=str).encode())
+    return int.from_bytes(digest.digest()[:8], "little")
+
+
+def _robustness_chunk(world: _World, geometry: ObjectGeometry, T_world: np.ndarray, widths: np.ndarray,
+                      draws: np.ndarray, params: RobustnessParams) -> list[GraspRobustness]:
+    """The perturbed copies of a chunk of successful grasps (world-frame poses ``(k, 4, 4)``, widths ``(k,)``,
+    draws ``(k, n, DRAWS_PER_COPY)``), in one freshly compiled model per worker, by the robustness stage's
+    :func:`graspgen.quality.robustness.grasp_robustness` (the copies' epsilon by the default ``EpsilonParams``)."""
+    simulator = LiftSimulator(_world_spec(world).compile(), world.lift)
+    gripper = load_gripper(world.gripper)
+    body = object_body_name(0, world.obj.name)
+    epsilon = EpsilonParams()
+    return [grasp_robustness(simulator, T, float(w), body, geometry, world.obj.friction, d, params, epsilon, gripper)
+            for T, w, d in zip(T_world, widths, draws)]
+
+
+def _robustness_columns(n: int, ok: np.ndarray, rows: list[GraspRobustness]) -> list[pa.Array]:
+    """The :data:`ROBUSTNESS_FIELDS` columns of ``n`` grasps, ``rows[k]`` the labels of grasp ``ok[k]``."""
+    by_row: list[GraspRobustness | None] = [None] * n
+    for i, r in zip(ok, rows):
+        by_row[int(i)] = r
+    nan = float("nan")
+
+    def num(get) -> pa.Array:
+        return pa.array([get(r) if r is not None else nan for r in by_row], pa.float64())
+
+    return [
+        pa.array([r.n if r is not None else 0 for r in by_row], pa.int32()),
+        pa.array([r.successes if r is not None else 0 for r in by_row], pa.int32()),
+        num(lambda r: r.robustness),
+        num(lambda r: r.interval[0]),
+        num(lambda r: r.interval[1]),
+        num(lambda r: r.grip_robustness),
+        num(lambda r: r.grip_interval[0]),
+        num(lambda r: r.grip_interval[1]),
+        variable_list([r.outcomes if r is not None else () for r in by_row], pa.int8()),
+    ]
 
 
 def _opening(prepared: Any, T: np.ndarray, widths: np.ndarray | None, spec: Any,

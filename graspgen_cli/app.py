@@ -43,7 +43,7 @@ def find_shard(project: Project, config: Any, stage: str, task_id: str) -> tuple
     want: str | None = None
     for s in topological_order(project.stages, [stage]):
         try:
-            planned = plan(s, s.params(config), upstream_view(out, s, keys, verify_hash=False))
+            planned = plan(s, s.params(config), upstream_view(out, s, keys, verify_hash=False), seed=config.run.seed)
         except USER_ERRORS:
             planned = []  # e.g. upstream not run yet: fall back to whatever is on disk
         keys[s.name] = {p.key for p in planned}
@@ -97,21 +97,32 @@ def show_scene(
 
 @show_app.command("grasps")
 def show_grasps(
-    scene_id: Annotated[str, typer.Argument(help="Scene task id, e.g. scene_000000.")],
+    scene_id: Annotated[
+        str, typer.Argument(help="Scene task id, e.g. scene_000000; with --3d also an object name (its grasp set).")
+    ],
     num: Annotated[
         int, typer.Option("--num", "-n", help="At most this many grasps, spread over the labels.", min=0)
     ] = 30,
     view: Annotated[int, typer.Option("--view", "-v", help="Camera view to draw on.")] = 0,
     output: Annotated[
-        Path | None, typer.Option("--output", "-o", help="PNG path (default: OUT/show/<scene>_grasps_view<k>.png).")
+        Path | None,
+        typer.Option("--output", "-o", help="PNG path (default: OUT/show/<scene>_grasps_view<k>.png); with --3d a "
+                     ".glb path (default: OUT/show/<id>_grasps.glb)."),
     ] = None,
     scale: Annotated[int, typer.Option("--scale", help="Upscaling of the rendered view.", min=1, max=8)] = 3,
+    three_d: Annotated[
+        bool, typer.Option("--3d", help="Write a 3-D scene (GLB): the mesh(es) and one gripper marker per grasp.")
+    ] = False,
     config: ConfigOpt = None,
     out: Annotated[Path | None, typer.Option("--out", help="Output folder of the run (overrides run.out).")] = None,
     set_: SetOpt = None,
 ) -> None:
     """Draw a scene's grasps on one of its camera views as gripper markers (PNG), coloured by rollout outcome when
-    the scene was rolled out, else by the collision pre-filter; print the PNG's path."""
+    the scene was rolled out, else by the collision pre-filter; print the PNG's path.
+
+    With --3d, write a GLB instead: for an object name, the object and its free-space grasp set (the object_grasps
+    stage), green success, red failure, in the object's mesh frame; for a scene id, the scene's objects at their
+    poses and its grasps in the world frame, coloured as the picture is."""
     import pyarrow.parquet as pq
 
     from graspgen.io.scenes import read_scene
@@ -119,6 +130,9 @@ def show_grasps(
 
     console = Console(stderr=True)
     notes = []
+    if three_d:
+        _show_grasps_3d(console, scene_id, num, output, config, out, set_)
+        return
     try:
         cfg = load(PROJECT, config, set_, out=out)
         if output is None:
@@ -146,25 +160,123 @@ def show_grasps(
     save_image(console, output, picture.save)
 
 
+def _show_grasps_3d(console: Console, name: str, num: int, output: Path | None, config: Any, out: Path | None,
+                    set_: Any) -> None:
+    """``gen show grasps --3d``: an object's grasp set (object_grasps stage) or a scene's grasps as a GLB."""
+    import pyarrow.parquet as pq
+
+    from graspgen.io.objects import read_object
+    from graspgen.io.scenes import read_scene
+    from graspgen.viz.grasp_glb import object_set_glb, scene_glb, write_glb
+    from graspgen.viz.grasp_view import rollouts_match
+
+    notes = []
+    try:
+        cfg = load(PROJECT, config, set_, out=out)
+        if output is not None and output.suffix.lower() != ".glb":
+            raise ValueError(f"{output}: --3d writes a GLB file; use a .glb path")
+        if output is None:
+            output = Path(cfg.run.out) / "show" / f"{name}_grasps.glb"
+        check_writable(output, "output file", file=True)
+        try:
+            set_path, current = find_shard(PROJECT, cfg, "object_grasps", name)
+        except StageError as object_error:
+            set_path, current = None, False
+            try:
+                scene_path, current = find_shard(PROJECT, cfg, "scenes", name)
+            except StageError as scene_error:
+                raise StageError(f"{name!r} is neither an object with a grasp set ({object_error}) nor a scene "
+                                 f"({scene_error})") from None
+        if set_path is not None:
+            record = read_object(find_shard(PROJECT, cfg, "objects", name)[0])
+            data = object_set_glb(record, pq.read_table(set_path), n=num)
+        else:
+            grasps_path, grasps_current = find_shard(PROJECT, cfg, "grasps", name)
+            grasps = pq.read_table(grasps_path)
+            try:
+                rollouts_path, rollouts_current = find_shard(PROJECT, cfg, "rollouts", name)
+                rollouts = pq.read_table(rollouts_path)
+            except StageError:
+                rollouts, rollouts_current = None, False
+            if rollouts is not None and (rollouts_current != grasps_current or not rollouts_match(grasps, rollouts)):
+                notes.append(f"the rollouts of {name} do not belong to its grasps shard: colouring by the pre-filter")
+                rollouts = None
+            current = current and grasps_current
+            data = scene_glb(read_scene(scene_path), lambda n: read_object(find_shard(PROJECT, cfg, "objects", n)[0]),
+                             grasps, rollouts, n=num)
+        if not current:
+            notes.append(f"{name} is from an earlier config (its key differs from the current one)")
+    except (*USER_ERRORS, ValueError) as exc:
+        fail(console, str(exc))
+    for note in notes:
+        console.print(f"note: {note}", highlight=False, markup=False)
+    save_image(console, output, lambda path: write_glb(path, data))
+
+
 @show_app.command("rollout")
 def show_rollout(
-    scene_id: Annotated[str, typer.Argument(help="Scene task id, e.g. scene_000000.")],
-    grasp_id: Annotated[int, typer.Argument(help="Grasp id within the scene (the grasps table's grasp_id).")],
+    scene_id: Annotated[
+        str | None, typer.Argument(help="Scene task id, e.g. scene_000000 (not with --grasps).", show_default=False)
+    ] = None,
+    grasp_id: Annotated[
+        int | None,
+        typer.Argument(help="Grasp id within the scene (the grasps table's grasp_id).", show_default=False),
+    ] = None,
     output: Annotated[
         Path | None, typer.Option("--output", "-o", help="PNG strip or GIF (default: OUT/show/<scene>_g<id>.png).")
     ] = None,
     frames: Annotated[int, typer.Option("--frames", "-n", help="At most this many frames.", min=1, max=16)] = 6,
+    grasps: Annotated[
+        Path | None,
+        typer.Option("--grasps", help="Instead of a scene: an external grasp file as gen evaluate takes (ACRONYM "
+                     ".h5 or Parquet poses); show grasp --index in gen evaluate's world."),
+    ] = None,
+    index: Annotated[int | None, typer.Option("--index", help="Row of the grasp in --grasps (0-based).", min=0)] = None,
+    protocol: Annotated[
+        str | None,
+        typer.Option("--protocol", help="With --grasps: acronym, graspgen or table (default as gen evaluate: acronym "
+                     "for ACRONYM files, table for Parquet or with --support)."),
+    ] = None,
+    gripper: Annotated[
+        str | None, typer.Option("--gripper", help="With --grasps: the gripper (default: the ACRONYM file's).")
+    ] = None,
+    mesh_root: Annotated[
+        Path | None, typer.Option("--mesh-root", help="With --grasps: folder of ACRONYM's object/file (default: cwd).")
+    ] = None,
+    mesh: Annotated[
+        Path | None, typer.Option("--mesh", help="With --grasps: the mesh file (needed with Parquet).")
+    ] = None,
+    scale: Annotated[float | None, typer.Option("--scale", help="With --grasps: metres per mesh unit.")] = None,
+    friction: Annotated[float | None, typer.Option("--friction", help="With --grasps: the object's friction.")] = None,
+    support: Annotated[
+        bool, typer.Option("--support", help="With --grasps: the object on a table (table protocol).")
+    ] = False,
     config: ConfigOpt = None,
     out: Annotated[Path | None, typer.Option("--out", help="Output folder of the run (overrides run.out).")] = None,
     set_: SetOpt = None,
 ) -> None:
-    """Re-run one grasp of a scene and write frames of it (placement, approach, closing, lift) with its outcome."""
+    """Re-run one grasp of a scene and write frames of it (placement, approach, closing, lift) with its outcome.
+
+    With --grasps FILE --index I: one grasp of an external grasp file, rolled out as gen evaluate rolls it out (the
+    same object, protocol and world; --config as for gen evaluate), e.g. an ACRONYM grasp under the acronym protocol
+    (placed open, close, shake).
+    """
     import pyarrow.parquet as pq
 
     from graspgen.io.objects import read_object
     from graspgen.viz.rollout_movie import rollout_movie, save_movie
 
     console = Console(stderr=True)
+    if grasps is not None:
+        if scene_id is not None or grasp_id is not None:
+            fail(console, "scene_id, grasp_id: give either SCENE_ID GRASP_ID or --grasps FILE --index I, not both")
+        if index is None:
+            fail(console, "--index: which grasp of --grasps to show (its 0-based row)")
+        _show_external_rollout(console, grasps, index, output, frames, protocol, gripper, mesh_root, mesh, scale,
+                               friction, support, config, out, set_)
+        return
+    if scene_id is None or grasp_id is None:
+        fail(console, "scene_id, grasp_id: missing; give SCENE_ID GRASP_ID (or --grasps FILE --index I)")
     try:
         cfg = load(PROJECT, config, set_, out=out)
         if output is not None and output.suffix.lower() not in (".png", ".gif"):
@@ -195,6 +307,52 @@ def show_rollout(
                       markup=False, highlight=False)
     stored = "not rolled out" if movie.stored_outcome is None else str(movie.stored_outcome)
     console.print(f"outcome {movie.result.code} {movie.result.name} (stored: {stored}); {len(movie.images)} frames",
+                  highlight=False)
+    print(output)
+
+
+def _show_external_rollout(console: Console, grasps: Path, index: int, output: Path | None, frames: int,
+                           protocol: str | None, gripper: str | None, mesh_root: Path | None, mesh: Path | None,
+                           scale: float | None, friction: float | None, support: bool, config: Path | None,
+                           out: Path | None, set_: list[str] | None) -> None:
+    """``gen show rollout --grasps FILE --index I``: grasp I of FILE in gen evaluate's world, filmed."""
+    import dataclasses
+
+    from graspgen.evaluate import CHEAP_COACD, EvaluateParams, evaluation_world, read_grasp_file
+    from graspgen.viz.evaluate_movie import evaluated_rollout_movie
+    from graspgen.viz.rollout_movie import save_movie
+
+    try:
+        cfg = load(PROJECT, config, set_, out=out)
+        if output is not None and output.suffix.lower() not in (".png", ".gif"):
+            raise ValueError(f"{output}: unsupported image type {output.suffix or '(none)'!r}; use .png or .gif")
+        if output is None:
+            output = Path(cfg.run.out) / "show" / f"{grasps.stem}_i{index}.png"
+        check_writable(output, "output file", file=True)
+        params = EvaluateParams(lift=cfg.rollouts.lift, coacd=cfg.objects.coacd if config else CHEAP_COACD)
+        loaded = read_grasp_file(grasps, params, mesh_root=mesh_root, mesh=mesh, scale=scale, friction=friction)
+        n = len(loaded.T_tcp)
+        if index >= n:
+            raise ValueError(f"--index: {index} is out of range; {grasps} has grasps 0..{n - 1}")
+        if gripper is None:
+            if loaded.gripper is None:
+                raise ValueError(f"--gripper: needed with {grasps} (a Parquet file names no gripper)")
+            gripper = loaded.gripper
+        if protocol is None:
+            protocol = "acronym" if loaded.kind == "acronym" and not support else "table"
+        params = dataclasses.replace(loaded.params, lift=loaded.params.lift.with_protocol(protocol))
+        one = slice(index, index + 1)
+        world = evaluation_world(loaded.mesh_path, loaded.scale, loaded.T_tcp[one],
+                                 None if loaded.widths is None else loaded.widths[one], gripper, params,
+                                 free_space=not support, cache_dir=cfg.run.cache_dir)
+        reference = None if loaded.reference is None else int(loaded.reference[index])
+        movie = evaluated_rollout_movie(world, 0, name=f"{grasps.name} grasp {index}", reference=reference,
+                                        n_frames=frames)
+    except (*USER_ERRORS, ValueError) as exc:
+        fail(console, str(exc))
+    save_image(console, output, lambda path: save_movie(movie, path), show=False)
+    label = "" if reference is None else f" (file label: {'held' if reference == 1 else 'lost'})"
+    console.print(f"outcome {movie.result.code} {movie.result.name}{label}; {len(movie.images)} frames",
                   highlight=False)
     print(output)
 
@@ -259,6 +417,16 @@ def evaluate(
         ),
     ] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Worker processes (0 = all cores).")] = 1,
+    robustness: Annotated[
+        int,
+        typer.Option(
+            "--robustness",
+            help="Also roll out N perturbed copies of every successful grasp (the robustness stage's noise, config "
+            "section robustness) and add robustness columns (robustness, its Wilson interval, grip_robustness, "
+            "copy_outcomes); 0: none.",
+            min=0,
+        ),
+    ] = 0,
     config: ConfigOpt = None,
     set_: SetOpt = None,
 ) -> None:
@@ -271,6 +439,9 @@ def evaluate(
     ACRONYM: hand-base poses + the file gripper's TCP offset; object/scale, mass (or density), friction are used.
 
     --config: the protocol is its rollouts.lift, CoACD its objects.coacd (else cheap), cache in run.cache_dir.
+
+    --robustness N: N perturbed copies of each success, as the robustness stage perturbs them (its config section:
+    TCP pose, object mass and friction; radius not computed); the draws are seeded from the poses and settings.
     """
     import dataclasses
     import json
@@ -278,16 +449,14 @@ def evaluate(
     import numpy as np
     import pyarrow as pa
 
-    from graspgen.errors import InputError
     from graspgen.evaluate import (
         CHEAP_COACD,
         METADATA_KEY,
         EvaluateParams,
         evaluate_grasps,
         outcome_counts,
-        read_pose_table,
+        read_grasp_file,
     )
-    from graspgen.io.acronym import read_acronym
     from graspgen.io.files import write_parquet
     from graspgen.sim.grippers import load_gripper
 
@@ -296,51 +465,16 @@ def evaluate(
         cfg = load(PROJECT, config, set_)
         load_gripper(gripper)  # ConfigError listing the grippers, before any work
         check_writable(output, "output file (-o)", file=True)  # a folder, a read-only place: before simulating
-        suffix = grasps.suffix.lower()
-        if not grasps.is_file():
-            raise InputError(f"{grasps}: grasp file not found")
         params = EvaluateParams(lift=cfg.rollouts.lift, coacd=cfg.objects.coacd if config else CHEAP_COACD)
-        reference = None
+        loaded = read_grasp_file(grasps, params, mesh_root=mesh_root, mesh=mesh, scale=scale, friction=friction)
         if protocol is None:
-            protocol = "acronym" if suffix in (".h5", ".hdf5") and not support else "table"
-        params = dataclasses.replace(params, lift=params.lift.with_protocol(protocol))
-        if suffix in (".h5", ".hdf5"):
-            acr = read_acronym(grasps)
-            try:
-                T = acr.tcp_poses()
-            except USER_ERRORS as exc:
-                raise InputError(f"{grasps}: gripper/type {acr.gripper_type!r}: {exc}") from None
-            widths = None
-            root = mesh_root if mesh_root is not None else Path.cwd()
-            mesh_path = mesh if mesh is not None else root / acr.object_file
-            if not mesh_path.is_file():
-                how = "--mesh" if mesh is not None else f"object/file {acr.object_file!r} under --mesh-root {root}"
-                raise InputError(f"{grasps}: mesh not found: {mesh_path} ({how})")
-            scale = acr.object_scale if scale is None else scale
-            fric = friction if friction is not None else acr.object_friction
-            params = dataclasses.replace(
-                params,
-                friction=fric if fric is not None else params.friction,
-                mass=acr.object_mass,
-                density=acr.object_density if acr.object_density is not None else params.density,
-            )
-            reference = acr.success
-        elif suffix == ".parquet":
-            if mesh is None:
-                raise InputError(f"{grasps}: a Parquet grasp file needs --mesh (the mesh its poses refer to)")
-            T, widths = read_pose_table(grasps)
-            mesh_path = mesh if mesh_root is None or mesh.is_absolute() else mesh_root / mesh
-            if not mesh_path.is_file():
-                raise InputError(f"{grasps}: mesh not found: {mesh_path} (--mesh)")
-            if friction is not None:
-                params = dataclasses.replace(params, friction=friction)
-        else:
-            raise InputError(
-                f"{grasps}: unsupported grasp file format {grasps.suffix or '(none)'!r}; expected an ACRONYM HDF5 "
-                "file (.h5, .hdf5) or a Parquet table of poses (.parquet)"
-            )
+            protocol = "acronym" if loaded.kind == "acronym" and not support else "table"
+        params = dataclasses.replace(loaded.params, lift=loaded.params.lift.with_protocol(protocol))
+        reference = loaded.reference
+        noise = dataclasses.replace(cfg.robustness, num_perturbations=robustness) if robustness else None
         table = evaluate_grasps(
-            mesh_path, scale, T, widths, gripper, params, free_space=not support, jobs=jobs, cache_dir=cfg.run.cache_dir
+            loaded.mesh_path, loaded.scale, loaded.T_tcp, loaded.widths, gripper, params, free_space=not support,
+            jobs=jobs, cache_dir=cfg.run.cache_dir, robustness=noise,
         )
     except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
@@ -359,6 +493,12 @@ def evaluate(
     if reference is not None:
         agree = int(np.sum((table.column("outcome").to_numpy() == 5) == (np.asarray(reference) == 1)))
         console.print(f"agreement with the file's success label: {agree}/{len(table)}", highlight=False)
+    if robustness:
+        n_copies = table.column("robustness_n").to_numpy()
+        held = n_copies > 0
+        mean = float(np.mean(table.column("robustness").to_numpy()[held])) if held.any() else float("nan")
+        console.print(f"robustness: {int(n_copies.sum())} copies of {int(held.sum())} successes; mean robustness "
+                      f"{mean:.3f}", highlight=False)
     print(output)
 
 

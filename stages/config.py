@@ -6,6 +6,8 @@ import dataclasses
 
 from graspgen.quality.epsilon import MetricsParams
 from graspgen.quality.robustness import RobustnessParams
+from graspgen.sim.object_grasps import ObjectGraspsParams
+from graspgen.sim.placed_grasps import PlacedGraspsParams
 from graspgen.sim.rollouts import RolloutsParams
 from graspgen.sim.scene_grasps import GraspsParams
 from graspgen.sim.scenes import ScenesParams
@@ -23,10 +25,16 @@ class Config:
     """Where and how to run (output folder, workers, backend). Never enters a content key."""
     objects: ObjectsParams = dataclasses.field(default_factory=ObjectsParams)
     """Stage 1: mesh preparation."""
+    object_grasps: ObjectGraspsParams = dataclasses.field(default_factory=ObjectGraspsParams)
+    """Object-centric grasp sets (ACRONYM / GraspGen style): each object alone in free space, grasps over the whole
+    sphere labelled by a free-space protocol until the positive and negative targets are met."""
     scenes: ScenesParams = dataclasses.field(default_factory=ScenesParams)
     """Stage 2: random settled scenes on a support, with rendered camera views."""
     grasps: GraspsParams = dataclasses.field(default_factory=GraspsParams)
     """Stage 3: antipodal grasp candidates with a collision pre-filter."""
+    placed_grasps: PlacedGraspsParams = dataclasses.field(default_factory=PlacedGraspsParams)
+    """Object-level grasp sets placed into every scene and checked against the support and the neighbours
+    (ACRONYM's scenes: no new rollouts; optional re-simulation of a few per scene)."""
     rollouts: RolloutsParams = dataclasses.field(default_factory=RolloutsParams)
     """Stage 4: grasp-and-lift in MuJoCo, outcome codes 0-5."""
     robustness: RobustnessParams = dataclasses.field(default_factory=RobustnessParams)

@@ -103,7 +103,7 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from graspgen.io.acronym import export_acronym
+from graspgen.io.acronym import export_acronym, export_object_acronym
 from graspgen.io.card import (
     CARD_VERSION,
     MANAGED,
@@ -122,6 +122,7 @@ from graspgen.io.dataset_table import (
     join_scene,
     write_grasps_parquet,
 )
+from graspgen.io.graspgen_format import export_graspgen
 from graspgen.validation import check
 from pipeline.config import to_dict, to_yaml
 from pipeline.errors import StageError
@@ -138,6 +139,15 @@ __all__ = [
     "included_scenes",
     "validate",
 ]
+
+OBJECT_SETS = ("object_grasps", "placed_grasps")
+"""Stages whose shards are published as they are, concatenated, one table each: ``object_grasps.parquet`` (the
+object-centric grasp sets, by object) and ``placed_grasps.parquet`` (those sets placed in the scenes, by scene)."""
+
+OBJECT_SET_META = ("tried", "positives", "negatives", "target_positives", "target_negatives", "reached")
+"""Keys of an object-grasps task's manifest meta kept in ``object_grasps.parquet``'s metadata (under
+:data:`graspgen.io.dataset_table.META_KEY`, ``"tasks"``): how far each object's set got. Timings are left out: they
+would make the bytes differ between runs."""
 
 PROVENANCE_STAGE = "rollouts"
 """``source_key`` holds the key of this stage's shard of the scene (the last table stage when it is not joined)."""
@@ -156,7 +166,12 @@ class DatasetParams:
     """Rows per Parquet row group, about: whole scenes are packed into a group until the next would pass this (a
     larger scene gets a group of its own)."""
     acronym: bool = True
-    """Also export each object's grasps as an ACRONYM grasp file (acronym/<object>.h5) with its mesh as OBJ."""
+    """Also export each object's grasps as an ACRONYM grasp file (acronym/<object>.h5) with its mesh as OBJ: its
+    object-centric set (free-space labels, ACRONYM's meaning) when the object_grasps stage ran, else its scene
+    grasps."""
+    graspgen: bool = True
+    """Also export the object-centric sets in GraspGen's dataset layout (graspgen/: splits and one JSON per
+    object; :mod:`graspgen.io.graspgen_format`)."""
     plots: bool = True
     """Draw the card's plots (plots/*.png, with matplotlib)."""
     histogram_bins: int = 20
@@ -219,6 +234,9 @@ class DatasetStage(GraspStage):
     ----------
     tables : sequence of str
         The per-scene table stages to join, the defining one (``grasps``) first.
+    object_sets : sequence of str
+        Stages whose shards are concatenated as they are into ``<stage>.parquet`` (:data:`OBJECT_SETS`); each is
+        one more task of this stage, made when that stage has shards.
     """
 
     name = "dataset"
@@ -226,18 +244,24 @@ class DatasetStage(GraspStage):
     ext = "parquet"
     published = ("dataset",)
 
-    def __init__(self, tables: Sequence[str] = TABLES):
+    def __init__(self, tables: Sequence[str] = TABLES, object_sets: Sequence[str] = ()):
         if not tables:
             raise StageError("dataset: needs at least one table stage")
         self.tables = tuple(tables)
-        self.inputs = ("objects", "scenes", *self.tables)
+        self.object_sets = tuple(object_sets)
+        self.inputs = ("objects", "scenes", *self.tables, *self.object_sets)
 
     def params(self, config: Any) -> DatasetTaskParams:
         sections = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "run"}
         return DatasetTaskParams(dataset=config.dataset, config=sections)
 
     def tasks(self, params: DatasetTaskParams, upstream: Upstream) -> list[Task]:
-        return [Task(id="dataset", payload={"tables": list(self.tables)})]
+        needs = {stage: upstream.ids(stage) for stage in ("objects", "scenes", *self.tables)}
+        tasks = [Task(id="dataset", payload={"tables": list(self.tables)}, needs=needs)]
+        for stage in self.object_sets:
+            if upstream.ids(stage):
+                tasks.append(Task(id=stage, payload={"stage": stage}, needs={stage: upstream.ids(stage)}))
+        return tasks
 
     def run(
         self,
@@ -248,6 +272,8 @@ class DatasetStage(GraspStage):
         out: Path,
         ctx: RunContext,
     ) -> dict[str, Any]:
+        if task.id in self.object_sets:
+            return self._concatenate(task.id, upstream, params, out)
         scenes, left_out = included_scenes(upstream, self.tables)
         if not scenes:
             raise StageError(
@@ -271,6 +297,17 @@ class DatasetStage(GraspStage):
             metadata={META_KEY: canonical_json(meta).encode()},
         )
         return {"grasps": rows, "scenes": len(scenes), "left_out": left_out, "columns": merged[0].num_columns}
+
+    def _concatenate(self, stage: str, upstream: Upstream, params: DatasetTaskParams, out: Path) -> dict[str, Any]:
+        """``<stage>.parquet``: the stage's shards one after the other, by task id (object or scene name), with
+        what each task's meta says of how far it got (:data:`OBJECT_SET_META`) in the file's metadata."""
+        ids = upstream.ids(stage)
+        tables = [pq.read_table(upstream.path(stage, tid)) for tid in ids]
+        tasks = {tid: {k: v for k, v in upstream.meta(stage, tid).items() if k in OBJECT_SET_META} for tid in ids}
+        meta = {"format": FORMAT, "stage": stage, "tasks": tasks}
+        rows = write_grasps_parquet(out, tables, row_group_rows=params.dataset.row_group_rows,
+                                    metadata={META_KEY: canonical_json(meta).encode()})
+        return {"rows": rows, "tasks": len(ids)}
 
     def publish(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> list[str]:
         """Lay out ``dest/dataset`` (module docstring), or repair it when it already shows this shard.
@@ -327,6 +364,9 @@ class DatasetStage(GraspStage):
             sources[rel] = (stage, task_id)
 
         shard(self.name, "dataset", "grasps.parquet")
+        object_sets = [stage for stage in self.object_sets if stage in shards.ids(self.name)]
+        for stage in object_sets:
+            shard(self.name, stage, f"{stage}.parquet")
         scenes, left_out = included_scenes(shards, self.tables)
         for sid in scenes:
             shard("scenes", sid, f"scenes/{sid}.h5")
@@ -334,8 +374,12 @@ class DatasetStage(GraspStage):
             shard("objects", name, f"objects/{name}.h5")
         write_text_atomic(root / "config.yaml", config_yaml(params.config))
         add_file(files, root, "config.yaml")
-        if params.dataset.acronym:
-            for rel in export_acronym(root):
+        if params.dataset.acronym:  # ACRONYM's meaning (a free-space label per object grasp) where there is one
+            export = export_object_acronym if "object_grasps" in object_sets else export_acronym
+            for rel in export(root):
+                add_file(files, root, rel)
+        if params.dataset.graspgen and "object_grasps" in object_sets:
+            for rel in export_graspgen(root):
                 add_file(files, root, rel)
         stages = {
             stage: {

@@ -1,4 +1,4 @@
-"""This project's pipeline: its config schema and its seven stages."""
+"""This project's pipeline: its config schema and its nine stages."""
 
 from __future__ import annotations
 
@@ -6,10 +6,12 @@ from graspgen.errors import GraspGenError
 from pipeline.errors import GenError
 from pipeline.scheduler import Project
 from stages.config import Config
-from stages.dataset import DatasetStage
+from stages.dataset import OBJECT_SETS, DatasetStage
 from stages.grasps import GraspsStage
 from stages.metrics import MetricsStage
+from stages.object_grasps import ObjectGraspsStage
 from stages.objects import ObjectsStage
+from stages.placed_grasps import PlacedGraspsStage
 from stages.robustness import RobustnessStage
 from stages.rollouts import RolloutsStage
 from stages.scenes import ScenesStage
@@ -19,12 +21,14 @@ PROJECT = Project(
     schema=Config,
     stages=(
         ObjectsStage(),
+        ObjectGraspsStage(),
         ScenesStage(),
         GraspsStage(),
+        PlacedGraspsStage(),
         RolloutsStage(),
         RobustnessStage(),
         MetricsStage(),
-        DatasetStage(tables=("grasps", "rollouts", "robustness", "metrics")),
+        DatasetStage(tables=("grasps", "rollouts", "robustness", "metrics"), object_sets=OBJECT_SETS),
     ),
     user_errors=(GraspGenError,),
 )

@@ -64,21 +64,23 @@ def test_published_layout(run):
     for name in ("grasps.parquet", "card.md", "card.json", "config.yaml"):
         assert (d / name).is_file(), name
     # Only the dataset: the engine's shards and manifest of this stage live in OUT/shards/dataset.
-    published = {"grasps.parquet", "card.md", "card.json", "config.yaml", "scenes", "objects", "acronym", "plots"}
+    published = {"grasps.parquet", "object_grasps.parquet", "placed_grasps.parquet", "card.md", "card.json",
+                 "config.yaml", "scenes", "objects", "acronym", "graspgen", "plots"}
     assert {p.name for p in d.iterdir()} == published
     plots = {p.name for p in (d / "plots").glob("*.png")}
     assert plots == {"outcomes.png", "robustness.png", "epsilon.png", "correlation.png", "examples.png"}
     for png in (d / "plots").glob("*.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    with_grasps = set(pq.read_table(d / "grasps.parquet", columns=["object_name"]).column(0).to_pylist())
-    assert {p.stem for p in (d / "acronym").glob("*.h5")} == with_grasps
+    with_sets = set(pq.read_table(d / "object_grasps.parquet", columns=["object_name"]).column(0).to_pylist())
+    assert {p.stem for p in (d / "acronym").glob("*.h5")} == with_sets == set(objects)
     # The published shards are the shards themselves (hard links where the file system allows them).
     committed_scenes = committed(root / "out", "scenes")
     shard = stage_dir(root / "out", "scenes") / committed_scenes[keys(root / "out", "scenes")[scenes[0]]].file
     assert sha256_file(d / "scenes" / f"{scenes[0]}.h5") == sha256_file(shard)
     card = json.loads((d / "card.json").read_text())
     assert set(card["files"]) >= {"grasps.parquet", "config.yaml", *(f"plots/{p}" for p in plots)}
-    assert set(card["stages"]) == {"objects", "scenes", "grasps", "rollouts", "robustness", "metrics", "dataset"}
+    assert set(card["stages"]) == {"objects", "object_grasps", "scenes", "grasps", "placed_grasps", "rollouts",
+                                   "robustness", "metrics", "dataset"}
     assert card["stages"]["rollouts"]["keys"] == keys(root / "out", "rollouts")
     assert card["config"]["grasps"]["max_per_object"] == 24 and "run" not in card["config"]
     assert {"python", "numpy", "mujoco", "pyarrow", "graspgen"} <= set(card["versions"])
@@ -158,6 +160,12 @@ def test_same_bytes_for_one_and_two_workers_and_dask(run, tmp_path):
         assert all(r.failed == 0 for r in reports), name
         assert shard_hashes(tmp_path / name) == reference, name
         assert sha256_file(tmp_path / name / "dataset" / "grasps.parquet") == published, name
+        for folder in ("acronym", "graspgen"):  # the exports, file by file
+            mine = {p.relative_to(root / "out").as_posix(): sha256_file(p)
+                    for p in sorted((root / "out" / "dataset" / folder).rglob("*")) if p.is_file()}
+            theirs = {p.relative_to(tmp_path / name).as_posix(): sha256_file(p)
+                      for p in sorted((tmp_path / name / "dataset" / folder).rglob("*")) if p.is_file()}
+            assert mine == theirs and mine, (name, folder)
         card = json.loads((tmp_path / name / "dataset" / "card.json").read_text())
         assert card == json.loads((root / "out" / "dataset" / "card.json").read_text()), name
 
@@ -237,22 +245,43 @@ def test_config_yaml_makes_the_same_config(run):
             assert to_dict(getattr(again, f.name)) == to_dict(getattr(cfg, f.name)), f.name
 
 
-def test_acronym_export_round_trips_the_poses(run):
+def test_object_sets_are_the_stage_shards_one_after_the_other(run):
+    root, _ = run
+    out = root / "out"
+    for stage, by in (("object_grasps", "object_name"), ("placed_grasps", "scene_id")):
+        published = pq.read_table(out / "dataset" / f"{stage}.parquet")
+        shards = tables(out, stage)
+        assert published.column_names == shards[next(iter(shards))].column_names
+        expected = pa.concat_tables([shards[t] for t in sorted(shards)])
+        assert json.dumps(published.to_pylist()) == json.dumps(expected.to_pylist()), stage  # NaN == NaN here
+        assert published.column(by).to_pylist() == sorted(published.column(by).to_pylist())
+    card = json.loads((out / "dataset" / "card.json").read_text())
+    sets = card["object_sets"]
+    got = pq.read_table(out / "dataset" / "object_grasps.parquet")
+    for name, o in sets["objects"].items():
+        rows = got.filter(pa.compute.equal(got.column("object_name"), name))
+        assert o["positives"] == sum(rows.column("success").to_pylist())
+        assert o["positives"] + o["negatives"] == len(rows) and o["tried"] >= len(rows)
+    placed = pq.read_table(out / "dataset" / "placed_grasps.parquet")
+    assert sets["placed"]["grasps"] == len(placed)
+    assert sets["placed"]["positives"] == sum(placed.column("success").to_pylist())
+
+
+def test_acronym_export_is_the_object_sets_with_free_space_labels(run):
     from graspgen.io.acronym import read_acronym
 
     root, _ = run
     d = root / "out" / "dataset"
-    t = pq.read_table(d / "grasps.parquet")
+    t = pq.read_table(d / "object_grasps.parquet")
     names = np.asarray(t.column("object_name").to_pylist())
     for path in sorted((d / "acronym").glob("*.h5")):
         rows = t.take(pa.array(np.flatnonzero(names == path.stem)))
         acr = read_acronym(path)
         expected = np.asarray(rows.column("pose_object").combine_chunks().values).reshape(-1, 4, 4)
         np.testing.assert_allclose(acr.tcp_poses(), expected, rtol=0, atol=1e-9)
-        np.testing.assert_array_equal(acr.success, rows.column("outcome").to_numpy() == 5)
+        np.testing.assert_array_equal(acr.success, np.asarray(rows.column("success").to_pylist()))
         np.testing.assert_array_equal(acr.qualities["graspgen/grasp_id"], rows.column("grasp_id").to_numpy())
-        np.testing.assert_array_equal(acr.qualities["graspgen/robustness"], rows.column("robustness").to_numpy())
-        assert acr.gripper == "robotiq_2f85"
+        assert acr.gripper == "panda"
         assert (d / "acronym" / acr.object_file).is_file()
         mesh = (d / "acronym" / acr.object_file).read_text().splitlines()
         assert sum(line.startswith("v ") for line in mesh) > 0
@@ -318,7 +347,8 @@ def test_status_names_damaged_published_files_and_run_replaces_them(run, tmp_pat
     assert "published: scenes/scene_000002.h5 damaged (will be replaced)" in text
     reports = {r.stage: r for r in run_pipeline(PROJECT, cfg)}
     assert {s: r.ran for s, r in reports.items()} == {
-        "objects": 0, "scenes": 1, "grasps": 0, "rollouts": 0, "robustness": 0, "metrics": 0, "dataset": 1,
+        "objects": 0, "object_grasps": 0, "scenes": 1, "grasps": 0, "placed_grasps": 0, "rollouts": 0,
+        "robustness": 0, "metrics": 0, "dataset": 1,
     }
     assert reports["dataset"].repaired == [
         "replaced grasps.parquet (damaged)",
@@ -346,7 +376,7 @@ def test_damaged_missing_and_stray_published_files_are_repaired(run, tmp_path):
     (d / "card.md").write_text("edited\n")
     st = {s.stage: s for s in status(PROJECT, cfg)}
     assert all(st[t].state == "done" for t in ("objects", "scenes", *TABLE_STAGES))
-    assert st["dataset"].state == "damaged" and st["dataset"].done == 1
+    assert st["dataset"].state == "damaged" and st["dataset"].done == 3  # grasps and the two object-set tables
     rel = acronym.relative_to(d).as_posix()
     assert st["dataset"].reasons == [
         f"published: {rel} missing (will be replaced)",

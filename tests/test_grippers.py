@@ -147,6 +147,14 @@ def _pad_faces(model, data) -> tuple[float, float, float, float]:
     return float(pl[:, 0].max()), float(pr[:, 0].min()), float(both[:, 2].min()), float(both[:, 2].max())
 
 
+def _pad_centre_z(spec: G.GripperSpec, width: float) -> float:
+    """TCP-frame z (m) of the pads' centre at ``width``: 0, or with a linkage, the open pad's centre plus its rise."""
+    if spec.linkage is None:
+        return 0.0
+    lo, hi = (spec.pad_geom or G.Box(size=spec.pad_size)).bounds
+    return float((lo[2] + hi[2]) / 2.0 + spec.pad_rise(width))
+
+
 def _pad_contacts(model, data) -> tuple[bool, bool]:
     left, right = G.pad_geom_ids(model)
     box_geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "box")
@@ -158,8 +166,8 @@ def _pad_contacts(model, data) -> tuple[bool, bool]:
 # ------------------------------------------------------------------------------------------------- data & registry
 
 
-def test_registry_holds_the_three_grippers():
-    assert set(G.GRIPPERS) == {"robotiq_2f85", "panda", "box_jaw"}
+def test_registry_holds_the_bundled_grippers():
+    assert set(G.GRIPPERS) == {"robotiq_2f85", "robotiq_2f85_mesh", "panda", "box_jaw"}
     assert G.DEFAULT_GRIPPER == "robotiq_2f85"
     f85 = G.load_gripper("robotiq_2f85")
     assert (f85.min_width, f85.max_width) == (0.0, 0.085)
@@ -177,8 +185,8 @@ def test_registry_holds_the_three_grippers():
 def test_unknown_gripper_raises_settings_error_listing_choices():
     with pytest.raises(SettingsError) as err:
         G.load_gripper("x")
-    assert str(err.value) == ("gripper: unknown 'x'; choose one of: box_jaw, panda, robotiq_2f85 (or give the path "
-                              "of a gripper file: .yaml, .yml, .json)")
+    assert str(err.value) == ("gripper: unknown 'x'; choose one of: box_jaw, panda, robotiq_2f85, robotiq_2f85_mesh "
+                              "(or give the path of a gripper file: .yaml, .yml, .json)")
     assert isinstance(err.value, GraspGenError)
 
 
@@ -256,7 +264,8 @@ def test_gripper_compiles_with_tcp_frame_at_origin(name):
     # Geoms: named by role, gripper collision bits, one group.
     roles = G.gripper_geom_ids(model)
     assert len(roles["left_pad"]) == len(roles["right_pad"]) == 1
-    assert len(roles["finger"]) == 2 * max(1, len(spec.finger_geoms))
+    links = 0 if spec.linkage is None else len(spec.linkage.driver_geoms) + len(spec.linkage.follower_geoms)
+    assert len(roles["finger"]) == 2 * (max(1, len(spec.finger_geoms)) + links)
     assert len(roles["palm"]) == len(spec.palm_geoms or spec.palm_boxes)
     for gid in roles["all"]:
         assert model.geom_contype[gid] == G.GRIPPER_CONTYPE
@@ -267,9 +276,9 @@ def test_gripper_compiles_with_tcp_frame_at_origin(name):
         if spec.pad_geom is None:
             np.testing.assert_allclose(model.geom_size[gid] * 2, spec.pad_size)
     # Hand base (flange / hand frame) behind the TCP: the palm reaches back to z = -tcp_offset (the Panda's hand
-    # mesh 25.9 mm further, behind its hand frame).
+    # mesh 25.9 mm further, behind its hand frame; the 2F-85 housing's centring boss 2.74 mm behind its mounting face).
     palm_min_z = min(_geom_vertices(model, data, g)[:, 2].min() for g in roles["palm"])
-    behind = 0.0 if spec.name != "panda" else 0.0259248
+    behind = {"panda": 0.0259248, "robotiq_2f85_mesh": 0.00274}.get(spec.name, 0.0)
     assert palm_min_z == pytest.approx(-spec.tcp_offset - behind, abs=1e-6)
 
 
@@ -288,11 +297,12 @@ def test_width_tracks_command_and_pads_stay_centred(name):
         pl, pr = data.geom_xpos[left[0]], data.geom_xpos[right[0]]
         np.testing.assert_allclose(((pl + pr) / 2.0)[:2], 0.0, atol=1e-3)  # pads symmetric about the TCP
         # The pads' contact faces are `width` apart along TCP x, midway around the TCP origin, and the pads are
-        # centred on the TCP plane z = 0 (a mesh pad: its extent along z, whatever its centroid).
+        # centred on the TCP plane z = 0 (a mesh pad: its extent along z, whatever its centroid); with a linkage,
+        # where its path puts them: the TCP plane halfway between their lowest and highest centre.
         left_face, right_face, z_lo, z_hi = _pad_faces(model, data)
         assert right_face - left_face == pytest.approx(width, abs=1e-3)
         assert (right_face + left_face) / 2.0 == pytest.approx(0.0, abs=1e-3)
-        assert (z_lo + z_hi) / 2.0 == pytest.approx(0.0, abs=1e-3)
+        assert (z_lo + z_hi) / 2.0 == pytest.approx(_pad_centre_z(spec, width), abs=1e-3)
         assert abs((pr - pl)[2]) < 1e-6  # the left pad is the right one turned about z: same height
     assert data.ncon == 0  # closed to width 0 (pads touching) without self-contacts
 
@@ -504,6 +514,163 @@ def test_2f85_and_box_jaw_figures():
 # ------------------------------------------------------------------------------------------------- gripper files
 
 
+ROBOTIQ_DIR = REPO / "assets" / "grippers" / "robotiq_2f85"
+
+
+def _urdf_joints() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The vendored 2F-85 URDF's joints: name -> (origin xyz, rpy)."""
+    import xml.etree.ElementTree as ET
+
+    text = (ROBOTIQ_DIR / "airo" / "robotiq_2f_85.urdf").read_text().replace("drake:", "drake_")  # no xmlns
+    root = ET.fromstring(text)
+    return {j.get("name"): (np.array(j.find("origin").get("xyz").split(), dtype=float),
+                            np.array(j.find("origin").get("rpy", "0 0 0").split(), dtype=float))
+            for j in root.iter("joint") if j.find("origin") is not None}
+
+
+def _urdf_right_finger(theta: float) -> dict[str, np.ndarray]:
+    """The right finger's parts at outer-knuckle angle ``theta`` by the URDF's chain (the knuckles turn by theta, the
+    inner finger's joint by -theta: its mimic), hand-base frame (base_link: I turned -90 deg about z, y -> x)."""
+    j = _urdf_joints()
+
+    def rot(t):
+        c, s = np.cos(t), np.sin(t)
+        return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+    def mesh(name):
+        return trimesh.load(ROBOTIQ_DIR / "airo" / name, force="mesh").vertices * 0.001
+
+    R = rot(theta)
+    knuckle = j["right_outer_knuckle_joint"][0]
+    outer = knuckle + j["right_outer_finger_joint"][0] @ R.T
+    inner = outer + j["right_inner_finger_joint"][0] @ R.T  # then turned back by -theta: orientation as at 0
+    parts = {
+        "driver": np.vstack([knuckle + mesh("robotiq_arg2f_85_outer_knuckle.obj") @ R.T,
+                             outer + mesh("robotiq_arg2f_85_outer_finger.obj") @ R.T]),
+        "follower": j["right_inner_knuckle_joint"][0] + mesh("robotiq_arg2f_85_inner_knuckle.obj") @ R.T,
+        "finger": inner + mesh("robotiq_arg2f_85_inner_finger.obj"),
+        "pad": (inner + j["right_inner_finger_pad_joint"][0])[None],
+    }
+    return {k: np.stack([v[:, 1], -v[:, 0], v[:, 2]], axis=1) for k, v in parts.items()}
+
+
+def test_2f85_mesh_matches_the_urdf_and_data_sheet():
+    """robotiq_2f85_mesh: the data sheet's stroke (0-85 mm), force range, speed and mass; the URDF's pad box and
+    joint frames; and at every width the compiled model's links, finger and pad are where the URDF's chain puts them
+    (knuckle angle from the pad face's x), the pads parallel, rising 13.7 mm towards the object as they close."""
+    from scipy.spatial import cKDTree
+
+    spec = G.load_gripper("robotiq_2f85_mesh")
+    assert (spec.min_width, spec.max_width) == (0.0, 0.085)  # data sheet: stroke 85 mm
+    assert 20.0 <= spec.force_limit <= 235.0 and 0.02 <= spec.closing_speed <= 0.15  # N, m/s (data sheet)
+    link = spec.linkage
+    mass = spec.body_mass + 2 * (spec.finger_mass + link.driver_mass + link.follower_mass)
+    assert mass == pytest.approx(0.925, abs=1e-6)  # data sheet: 0.925 kg
+    j = _urdf_joints()
+    tcp = spec.tcp_offset
+    assert link.pivot == pytest.approx((j["right_outer_knuckle_joint"][0][1], j["right_outer_knuckle_joint"][0][2]
+                                        - tcp), abs=1e-9)
+    assert link.follower_pivot == pytest.approx((j["right_inner_knuckle_joint"][0][1],
+                                                 j["right_inner_knuckle_joint"][0][2] - tcp), abs=1e-9)
+    crank0 = j["right_outer_finger_joint"][0] + j["right_inner_finger_joint"][0]  # at the URDF's zero
+    assert link.radius == pytest.approx(np.hypot(crank0[1], crank0[2]), abs=1e-6)
+    pad_box = G.Box(size=(0.00635, 0.022, 0.0375))  # the URDF's pad box, thickness first
+    assert spec.pad_geom.size == pad_box.size
+    gspec = G.build_gripper(spec)
+    gspec.option.gravity = [0.0, 0.0, 0.0]
+    model, data = _compile(gspec)
+    roles = G.gripper_geom_ids(model)
+    right_pad = roles["right_pad"][0]
+    body_of = {name: mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"gripper/right_{name}")
+               for name in ("driver", "follower", "jaw")}
+    centres = []
+    for width in np.linspace(spec.max_width, spec.min_width, 6):
+        G.set_gripper_width(model, data, width, instant=True)
+        theta = link.angle((width - spec.max_width) / 2.0) + np.arctan2(link.crank[1], link.crank[0]) - np.arctan2(
+            crank0[2], crank0[1])  # the URDF's knuckle angle
+        urdf = {k: v - [0.0, 0.0, tcp] for k, v in _urdf_right_finger(float(theta)).items()}
+        assert urdf["pad"][0, 0] - pad_box.size[0] / 2 == pytest.approx(width / 2, abs=1e-6)  # face at width / 2
+        for name, body in body_of.items():
+            geoms = [g for g in roles["finger"] if model.geom_bodyid[g] == body]
+            ours = np.vstack([_in_tcp(model, data, _geom_vertices(model, data, g)) for g in geoms])
+            expect = urdf["finger" if name == "jaw" else name]
+            np.testing.assert_allclose(ours.min(axis=0), expect.min(axis=0), atol=1e-4)  # quartic fit < 0.1 mm
+            np.testing.assert_allclose(ours.max(axis=0), expect.max(axis=0), atol=1e-4)
+            # every vertex of our pieces (their hulls' vertices) is a vertex of the URDF's meshes, posed
+            assert len(ours) >= 4 and cKDTree(expect).query(ours)[0].max() < 1e-4
+        pad = _in_tcp(model, data, data.geom_xpos[right_pad][None])[0]
+        np.testing.assert_allclose(pad, urdf["pad"][0], atol=1e-4)
+        np.testing.assert_allclose(data.geom_xmat[right_pad].reshape(3, 3), np.eye(3), atol=1e-9)  # parallel
+        centres.append(pad[2])
+    assert theta == pytest.approx(0.81, abs=0.01)  # closed: the URDF's knuckle limit (0.8 left, 0.81 right)
+    # The pads move towards the object as the fingers close (Robotiq: the fingertips' "vertical motion"), 13.7 mm
+    # over the stroke; the TCP plane lies halfway along that travel, and the contact length the sampler uses is the
+    # part of the 37.5 mm pads that faces it at every width.
+    rise = max(centres) - centres[0]
+    assert rise == pytest.approx(0.0137, abs=2e-4) and centres[-1] > centres[0]
+    assert (max(centres) + min(centres)) / 2 == pytest.approx(0.0, abs=1e-4)
+    assert spec.pad_size[1:] == pytest.approx((0.022, 0.0375 - rise), abs=2e-4)
+    fine = np.linspace(spec.min_width, spec.max_width, 200)
+    assert float(np.ptp(spec.pad_rise(fine))) == pytest.approx(rise, abs=1e-4)
+
+
+def test_linkage_couplings_pose_the_links_as_the_simulation_does():
+    """Setting only the jaw slides and applying the couplings (what the pre-filter and the rollouts do) puts every
+    linkage joint where the simulated gripper puts it; a gripper without a linkage has none."""
+    assert len(G.linkage_couplings(_compile(G.build_gripper(G.load_gripper("robotiq_2f85")))[0]).qposadr) == 0
+    gspec = G.build_gripper(G.load_gripper("robotiq_2f85_mesh"))
+    gspec.option.gravity = [0.0, 0.0, 0.0]
+    model, data = _compile(gspec)
+    couplings = G.linkage_couplings(model)
+    assert len(couplings.qposadr) == 6  # per side: the pad's lift, the driver and the follower
+    for width in (0.0, 0.03, 0.07):
+        G.set_gripper_width(model, data, width)
+        _settle(model, data, 1.0)
+        qpos = data.qpos.copy()
+        qpos[couplings.qposadr] = 0.0
+        couplings.apply(qpos)
+        np.testing.assert_allclose(qpos, data.qpos, atol=2e-5)
+
+
+def test_2f85_mesh_grasps_and_lifts_a_box():
+    """The mesh 2F-85 lifts a 5 cm, 1 kg box (friction 0.8) with both pads; its inner knuckles reach the cube's top
+    edges at 50 mm (real geometry), which push it ~1.5 mm towards the fingertips while it is held."""
+    model, data = _compile(_box_world(0.8, gripper="robotiq_2f85_mesh"))
+    res = _grasp_and_lift(model, data)
+    assert res["dz"] > 0.15, res
+    assert res["slip"] < 3e-3, res
+    assert res["width"] == pytest.approx(2 * BOX_HALF, abs=1.5e-3), res
+    assert _pad_contacts(model, data) == (True, True)
+    low = _grasp_and_lift(*_compile(_box_world(0.01, gripper="robotiq_2f85_mesh")))
+    assert low["dz"] < 0.02, low
+
+
+def test_robotiq_pieces_are_up_to_date(tmp_path):
+    """assets/make_grippers.py makes the committed 2F-85 pieces byte for byte from the vendored airo-models meshes."""
+    spec = importlib.util.spec_from_file_location("make_grippers", REPO / "assets" / "make_grippers.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.robotiq(tmp_path)
+    for name in ("palm.obj", "driver.obj", "follower.obj", "finger.obj"):
+        assert (tmp_path / name).read_bytes() == (ROBOTIQ_DIR / name).read_bytes(), name
+
+
+def test_linkage_in_a_user_file_round_trips_and_is_checked(tmp_path):
+    spec = G.load_gripper("robotiq_2f85_mesh")
+    path = G.write_gripper(spec, tmp_path / "mine.yaml")
+    again = G.read_gripper(path)
+    assert again == spec and again.linkage == spec.linkage
+    data = json.loads(json.dumps(spec.to_dict()))
+    data["linkage"]["crank"] = [0.001, 0.02]  # too short a reach to close the pads
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(SettingsError, match=r"bad.json: linkage.crank: must reach the closed pads"):
+        G.read_gripper(tmp_path / "bad.json")
+    data["linkage"] = {"pivot": [0.0, 0.0], "crank": [0.03, 0.04], "follower_pivot": [0.0, 0.0], "hinge": 1}
+    (tmp_path / "bad2.json").write_text(json.dumps(data))
+    with pytest.raises(SettingsError, match=r"linkage.hinge: unknown key"):
+        G.read_gripper(tmp_path / "bad2.json")
+
+
 def test_bundled_gripper_files_match_their_digests():
     """The bundled gripper files count as code (their digests are in grippers.py): editing one must change it."""
     files = sorted(p for p in G.GRIPPERS_DIR.rglob("*") if p.suffix in (".yaml", ".obj"))
@@ -518,7 +685,7 @@ def test_panda_pieces_are_up_to_date(tmp_path):
     spec = importlib.util.spec_from_file_location("make_grippers", REPO / "assets" / "make_grippers.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    module.main(tmp_path)
+    module.panda(tmp_path)
     for name in ("hand.obj", "finger.obj", "pad.obj"):
         assert (tmp_path / name).read_bytes() == (G.GRIPPERS_DIR / "panda" / name).read_bytes(), name
 

@@ -217,6 +217,8 @@ def test_run_prints_the_warnings_and_the_card_lists_them(tmp_path):
         "  cameras: {num_views: 1, width: 160, height: 120}\n"
         "grasps:\n  max_per_object: 8\n  sampler: {num_surface_points: 64}\n"
         "robustness:\n  num_perturbations: 3\n"
+        "object_grasps:\n  target_positives: 4\n  target_negatives: 2\n  max_candidates: 200\n  batch_size: 16\n"
+        "  sampler: {num_surface_points: 64}\n"
     )
     args = ["run", "--config", cfg, "--out", tmp_path / "out", "--jobs", 2,
             "--set", f"run.cache_dir={tmp_path / 'cache'}", *[a for s in CHEAP for a in ("--set", s)]]
@@ -227,14 +229,16 @@ def test_run_prints_the_warnings_and_the_card_lists_them(tmp_path):
         "names to objects.include to use them)",
         "objects: inside_out_box: inside_out_box.obj: mesh repaired: fixed face winding / orientation",
         "objects: mm_cylinder: mm_cylinder.obj: largest extent 90.0 units, assumed millimetres, scaled by 0.001",
+        "object_grasps: big_box: object 'big_box': 0 of 4 positives, 0 of 2 negatives after 0 candidates: the "
+        "sampler found no more antipodal pairs the gripper opens around (object_grasps.sampler, object_grasps.gripper)",
         "grasps: scene_000000: gripper robotiq_2f85 cannot grasp object 'big_box': it is 200 mm across at its "
         "narrowest, the gripper closes on at most 75 mm (85 mm stroke less grasps.sampler.min_clearance)",
     ]
     lines = result.stderr.splitlines()
-    start = lines.index("4 warning(s):")
-    assert [line.strip() for line in lines[start + 1:start + 5]] == expected  # one a line: not wrapped
+    start = lines.index("5 warning(s):")
+    assert [line.strip() for line in lines[start + 1:start + 6]] == expected  # one a line: not wrapped
     card = json.loads((tmp_path / "out" / "dataset" / "card.json").read_text())
-    assert card["warnings"] == expected
+    assert sorted(card["warnings"]) == sorted(expected)  # the card lists them by the dataset stage's inputs
     assert "## Warnings" in (tmp_path / "out" / "dataset" / "card.md").read_text()
     again = gen(*args, cwd=tmp_path)  # nothing runs, the warnings are still told
-    assert again.returncode == 0 and "Nothing to do" in again.stderr and "4 warning(s):" in again.stderr
+    assert again.returncode == 0 and "Nothing to do" in again.stderr and "5 warning(s):" in again.stderr

@@ -75,7 +75,8 @@ def _pose(R, pos) -> np.ndarray:
 
 
 def _reference_codes(world: mujoco.MjSpec, T: np.ndarray, opening: float, target: str, margin: float) -> set[int]:
-    """Codes of every gripper contact closer than ``margin`` with the gripper at TCP pose ``T`` opened to ``opening``.
+    """Codes of every gripper contact closer than ``margin`` with the gripper at TCP pose ``T`` opened to ``opening``
+    (a finger's contact with the target: closer than ``margin - TARGET_TOUCH_DEPTH``).
 
     Independent of the checker: the gripper is attached to a frame placed at ``T`` (so the free joint's qpos0 is the
     pose), the jaws are placed by their body positions and joint references in the spec, contacts come from a full
@@ -110,7 +111,12 @@ def _reference_codes(world: mujoco.MjSpec, T: np.ndarray, opening: float, target
             continue
         other = int(con.geom[1] if is_gripper[0] else con.geom[0])
         root = root_name(int(model.geom_bodyid[other]))
-        codes.add(1 if root == target else 2 if root.startswith("obj/") else 0)
+        code = 1 if root == target else 2 if root.startswith("obj/") else 0
+        # The touch rule: a finger (a jaw's pad or finger link, by name) may press TARGET_TOUCH_DEPTH into the target.
+        finger = (names[0] if is_gripper[0] else names[1]).startswith(("gripper/left_", "gripper/right_"))
+        if code == 1 and finger and not con.dist < margin - P.TARGET_TOUCH_DEPTH:
+            continue
+        codes.add(code)
     return codes
 
 

@@ -19,8 +19,19 @@ differs: our TCP (midway between the pads) sits ``tcp_offset`` along the base's 
 :func:`tcp_from_hand_base` and :func:`hand_base_from_tcp` convert; the offset comes from the gripper the file names
 in ``gripper/type`` (``franka_panda`` is our ``panda``), so ``read_acronym(p).tcp_poses()`` gives TCP poses whatever
 gripper wrote the file. Strings are stored the way ACRONYM's own files store them (variable-length UTF-8 scalars)
-and read back whether they come as ``bytes`` or ``str``. :func:`export_acronym` writes the grasps of a published
-dataset folder as one such file per object.
+and read back whether they come as ``bytes`` or ``str``. Root attributes of the file (:func:`export_object_acronym`
+writes ``protocol``) are read into :attr:`AcronymGrasps.attrs`.
+
+Two exports of a published dataset folder write one such file per object, ``acronym/<object>.h5``, with the mesh as
+``acronym/meshes/<object>.obj`` (in metres, so ``object/scale`` is 1; ``object/file`` is ``meshes/<object>.obj``,
+relative to the ``acronym`` folder, ACRONYM's mesh root):
+
+* :func:`export_object_acronym`, ACRONYM's own meaning: the object-centric grasp sets of ``object_grasps.parquet``
+  (:mod:`graspgen.sim.object_grasps`), labelled in free space by a free-space protocol (``acronym``: ACRONYM's
+  close-and-shake test). ``flex/object_in_gripper`` is that protocol's success and the four
+  ``flex/object_motion_during_{closing,shaking}_{linear,angular}`` are its motion measures (:data:`FLEX_MOTION`).
+* :func:`export_acronym`: the scene-bound grasps of ``grasps.parquet`` (success = the table-top rollout's outcome 5),
+  in each object's mesh frame. Same file layout, but not ACRONYM's free-space label.
 """
 
 from __future__ import annotations
@@ -38,6 +49,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from graspgen.errors import InputError, SettingsError
+from graspgen.io.arrow import column_array
 from graspgen.io.atomic import atomic_path, write_text_atomic
 from graspgen.io.dataset_table import float_values
 from graspgen.sim.grippers import load_gripper
@@ -53,6 +65,8 @@ __all__ = [
     "read_acronym",
     "write_acronym",
     "export_acronym",
+    "export_object_acronym",
+    "FLEX_MOTION",
 ]
 
 SUCCESS_KEY = "flex/object_in_gripper"
@@ -63,6 +77,15 @@ GRIPPER_ALIASES: dict[str, str] = {"franka_panda": "panda"}
 
 _FILE_NAMES = {v: k for k, v in GRIPPER_ALIASES.items()}
 """Our gripper names -> the ``gripper/type`` we write (ACRONYM's own name where it has one)."""
+
+FLEX_MOTION: dict[str, str] = {
+    "motion_closing_linear": "flex/object_motion_during_closing_linear",
+    "motion_closing_angular": "flex/object_motion_during_closing_angular",
+    "motion_shaking_linear": "flex/object_motion_during_shaking_linear",
+    "motion_shaking_angular": "flex/object_motion_during_shaking_angular",
+}
+"""Our rollout motion columns (m, rad; NaN where the phase was not reached) -> ACRONYM's quality keys (below
+``grasps/qualities``) for the same measures of its close-and-shake test."""
 
 
 def _offset(tcp_offset: float) -> np.ndarray:
@@ -142,6 +165,9 @@ class AcronymGrasps:
     """Sliding friction coefficient (dimensionless)."""
     gripper_configuration: np.ndarray | None = None
     """(k,) float64 gripper joint configuration as stored."""
+    attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """Root attributes of the file (ACRONYM writes none; :func:`export_object_acronym` writes ``protocol``), strings
+    decoded."""
     path: str = ""
     """File it was read from (empty when built in memory)."""
 
@@ -260,6 +286,7 @@ def read_acronym(path: str | Path) -> AcronymGrasps:
             object_friction=_float(obj, "friction"),
             gripper_configuration=(np.asarray(grip["configuration"][()], dtype=np.float64).reshape(-1)
                                    if grip is not None and "configuration" in grip else None),
+            attrs={str(k): _string(v) if isinstance(v, (bytes, str)) else v for k, v in f.attrs.items()},
             path=str(path),
         )
 
@@ -284,6 +311,7 @@ def write_acronym(
     object_friction: float | None = None,
     gripper_configuration: Any = None,
     qualities: Mapping[str, Any] | None = None,
+    attrs: Mapping[str, str] | None = None,
 ) -> None:
     """Write grasps of one object as an ACRONYM grasp file (layout in the module docstring).
 
@@ -309,6 +337,8 @@ def write_acronym(
         Default: half the gripper's maximum opening (one finger joint of a fully open hand, 0.04 m for the Panda).
     qualities : mapping, optional
         Further per-grasp columns ``{"name/sub": (n,) array}`` written below ``grasps/qualities``.
+    attrs : mapping, optional
+        String attributes of the file's root (e.g. ``{"protocol": "acronym"}``), written in sorted order.
     """
     spec = load_gripper(gripper)
     T_base = hand_base_from_tcp(T_tcp, spec.tcp_offset)
@@ -340,6 +370,8 @@ def write_acronym(
                 f.create_dataset(f"object/{key}", data=np.asarray(value, dtype=np.float64).reshape(shape))
         f.create_dataset("gripper/type", data=_FILE_NAMES.get(spec.name, spec.name), dtype=text)
         f.create_dataset("gripper/configuration", data=config)
+        for key in sorted(attrs or {}):
+            f.attrs[str(key)] = str(attrs[key])  # type: ignore[index]
 
 
 def export_acronym(root: Path) -> list[str]:
@@ -359,21 +391,10 @@ def export_acronym(root: Path) -> list[str]:
     schema = pq.read_schema(root / "grasps.parquet")
     labels = [c for c in ("robustness", "pfc", "epsilon") if c in schema.names]
     table = pq.read_table(root / "grasps.parquet", columns=wanted + labels)
-    names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
     written = []
-    for name in sorted(set(names)):
-        rows = np.flatnonzero(names == name)
-        part = table.take(pa.array(rows))
-        grippers = sorted(set(part.column("gripper").to_pylist()))
-        if len(grippers) != 1:
-            raise InputError(f"acronym export: object {name!r} has grasps of several grippers: {grippers}")
-        obj = root / "objects" / f"{name}.h5"
-        with h5py.File(obj, "r") as f:
-            vertices, faces = f["mesh/vertices"][()], f["mesh/faces"][()]
-            com, inertia = f["mass/center_of_mass"][()], f["mass/inertia"][()]
-            mass, density = float(f.attrs["mass"]), float(f.attrs["density"])
-        mesh_rel = f"acronym/meshes/{name}.obj"
-        write_text_atomic(root / mesh_rel, _obj_text(vertices, faces))
+    for name, part in _by_object(table, root / "grasps.parquet"):
+        gripper = _one_gripper(part, name, root / "grasps.parquet")
+        mesh_rel, props = _write_object_mesh(root, name)
         qualities = {
             "graspgen/outcome": part.column("outcome").to_numpy().astype(np.int8),
             "graspgen/width": part.column("width").to_numpy(),
@@ -390,19 +411,136 @@ def export_acronym(root: Path) -> list[str]:
                 part.column("outcome").to_numpy() == 5,
                 object_file=f"meshes/{name}.obj",
                 object_scale=1.0,
-                gripper=grippers[0],
-                object_mass=mass,
-                object_com=com,
-                object_inertia=inertia,
-                object_density=density,
+                gripper=gripper,
                 qualities=qualities,
+                **props,
             )
         written += [mesh_rel, rel]
     return written
 
 
-def _obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:
-    """Wavefront OBJ of a triangle mesh (shortest round-trip floats: deterministic, exact)."""
+def export_object_acronym(root: Path) -> list[str]:
+    """Each object's free-space grasp set of ``root/object_grasps.parquet`` as ``acronym/<object>.h5`` (ACRONYM's
+    meaning), with its mesh as ``acronym/meshes/<object>.obj``.
+
+    Parameters
+    ----------
+    root : Path
+        A published dataset folder: ``object_grasps.parquet`` (the table of :mod:`graspgen.sim.object_grasps`, rows
+        sorted by object, then ``grasp_id``) and ``objects/<object>.h5`` (:func:`graspgen.io.objects.read_object`:
+        mesh in the same, scaled, mesh frame as ``pose_object``; mass properties).
+
+    Per object, in the table's row order (by ``grasp_id``):
+
+    * ``grasps/transforms``: ``pose_object`` (TCP, object mesh frame) as ACRONYM's hand-base poses,
+      ``T_tcp @ Trans(0, 0, -tcp_offset)`` with the row gripper's ``tcp_offset`` (:func:`write_acronym`);
+    * ``grasps/qualities/flex/object_in_gripper``: ``success`` of the free-space protocol (1 / 0);
+    * ``grasps/qualities/flex/object_motion_during_{closing,shaking}_{linear,angular}``: the ``motion_*`` columns
+      (m, rad; NaN where the phase was not reached), where the table has them (:data:`FLEX_MOTION`);
+    * ``grasps/qualities/graspgen/``: ``grasp_id`` (int32), ``outcome`` (int8), ``width`` (contact width, m) and,
+      when present, ``open_width``, ``closed_width``, ``epsilon``, ``robustness`` (float64, NaN for nulls);
+    * ``object/file`` ``meshes/<object>.obj``, ``object/scale`` 1 (the OBJ is in metres), ``object/mass``,
+      ``object/density``, ``object/com``, ``object/inertia`` from the object record; ``gripper/type``; the root
+      attribute ``protocol`` (e.g. ``acronym``).
+
+    Returns
+    -------
+    list of str
+        The written files (mesh, then grasp file, per object in name order), relative to ``root``.
+
+    Raises
+    ------
+    graspgen.errors.InputError
+        The table or an object record is missing or lacks a column / entry; an object's rows name several grippers
+        or protocols. The message names the file.
+    """
+    path = root / "object_grasps.parquet"
+    if not path.is_file():
+        raise InputError(f"{path}: object grasp table not found")
+    names = set(pq.read_schema(path).names)
+    required = ["object_name", "grasp_id", "gripper", "protocol", "pose_object", "success", "outcome", "width"]
+    missing = [c for c in required if c not in names]
+    if missing:
+        raise InputError(f"{path}: not an object grasp table: no column(s) {', '.join(missing)}")
+    motions = [c for c in FLEX_MOTION if c in names]
+    extras = [c for c in ("open_width", "closed_width", "epsilon", "robustness") if c in names]
+    table = pq.read_table(path, columns=required + motions + extras)
+    written = []
+    for name, part in _by_object(table, path):
+        gripper = _one_gripper(part, name, path)
+        protocols = sorted(set(part.column("protocol").to_pylist()))
+        if len(protocols) != 1:
+            raise InputError(f"{path}: object {name!r} has grasps labelled by several protocols: {protocols}")
+        mesh_rel, props = _write_object_mesh(root, name)
+        qualities: dict[str, np.ndarray] = {FLEX_MOTION[c]: float_values(part.column(c)) for c in motions}
+        qualities["graspgen/grasp_id"] = part.column("grasp_id").to_numpy().astype(np.int32)
+        qualities["graspgen/outcome"] = part.column("outcome").to_numpy().astype(np.int8)
+        for column in ("width", *extras):
+            qualities[f"graspgen/{column}"] = float_values(part.column(column))
+        rel = f"acronym/{name}.h5"
+        with atomic_path(root / rel) as tmp:
+            write_acronym(
+                tmp,
+                column_array(part, "pose_object", (4, 4)),
+                part.column("success").to_numpy(zero_copy_only=False).astype(bool),
+                object_file=f"meshes/{name}.obj",
+                object_scale=1.0,
+                gripper=gripper,
+                qualities=qualities,
+                attrs={"protocol": str(protocols[0])},
+                **props,
+            )
+        written += [mesh_rel, rel]
+    return written
+
+
+def _by_object(table: pa.Table, path: Path) -> list[tuple[str, pa.Table]]:
+    """``table``'s rows per ``object_name``, objects in name order, rows in table order."""
+    names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
+    if any(not isinstance(n, str) or not n or "/" in n or n in (".", "..") for n in names):
+        raise InputError(f"{path}: object_name must be a non-empty file name (no '/') in every row")
+    return [(str(name), table.take(pa.array(np.flatnonzero(names == name)))) for name in sorted(set(names))]
+
+
+def _one_gripper(part: pa.Table, name: str, path: Path) -> str:
+    grippers = sorted(set(part.column("gripper").to_pylist()))
+    if len(grippers) != 1:
+        raise InputError(f"{path}: object {name!r} has grasps of several grippers: {grippers}")
+    return str(grippers[0])
+
+
+def _write_object_mesh(root: Path, name: str) -> tuple[str, dict[str, Any]]:
+    """Write ``acronym/meshes/<name>.obj`` from ``root/objects/<name>.h5``; return its path (relative to ``root``)
+    and the object's properties as :func:`write_acronym` keywords."""
+    obj = root / "objects" / f"{name}.h5"
+    if not obj.is_file():
+        raise InputError(f"{obj}: object record not found (needed for the mesh of {name!r})")
+    try:
+        with h5py.File(obj, "r") as f:
+            vertices, faces = f["mesh/vertices"][()], f["mesh/faces"][()]
+            props = {"object_com": f["mass/center_of_mass"][()], "object_inertia": f["mass/inertia"][()],
+                     "object_mass": float(f.attrs["mass"]), "object_density": float(f.attrs["density"])}
+    except (OSError, KeyError) as exc:
+        raise InputError(f"{obj}: not an object record ({exc})") from None
+    mesh_rel = f"acronym/meshes/{name}.obj"
+    write_text_atomic(root / mesh_rel, obj_text(vertices, faces))
+    return mesh_rel, props
+
+
+def obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:
+    """Wavefront OBJ of a triangle mesh (shortest round-trip floats: deterministic, exact).
+
+    Parameters
+    ----------
+    vertices : (v, 3) float
+        m.
+    faces : (f, 3) int
+        0-based vertex indices (written 1-based).
+
+    Returns
+    -------
+    str
+    """
     out = io.StringIO()
     out.write("# graspgen object mesh, metres\n")
     for x, y, z in np.asarray(vertices, dtype=np.float64).tolist():

@@ -27,7 +27,7 @@ import yaml
 
 from graspgen.errors import InputError
 from graspgen.io.atomic import write_text_atomic
-from graspgen.io.dataset_table import FORMAT, OUTCOME_NAMES, dataset_dir, float_values
+from graspgen.io.dataset_table import FORMAT, META_KEY, OUTCOME_NAMES, dataset_dir, float_values
 from graspgen.io.files import sha256_file
 from graspgen.validation import check
 
@@ -60,7 +60,7 @@ friction grid), not binned."""
 CARD_VERSION = 3
 """Bump when the card's content or the plots change: published folders are then re-rendered."""
 
-MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots")
+MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots", "graspgen", "graspgen/objects")
 """Subfolders of a dataset folder that the card owns: files there that it does not list are not part of the
 dataset, and :func:`build_card` removes them."""
 
@@ -212,7 +212,79 @@ def card_stats(root: Path, files: Mapping[str, Any], settings: CardSettings) -> 
         "labels": labels,
         "correlation": _correlations(table),
     }
+    sets = object_set_stats(root, files)
+    if sets:
+        stats["object_sets"] = sets
     return stats, table
+
+
+OBJECT_SET_FILES = ("object_grasps.parquet", "placed_grasps.parquet")
+"""The object-centric tables a dataset may hold besides grasps.parquet."""
+
+
+def _rate(k: int, n: int) -> float | None:
+    return _num(k / n) if n else None
+
+
+def object_set_stats(root: Path, files: Mapping[str, Any]) -> dict[str, Any]:
+    """What the card says of the object-centric sets, when ``files`` lists them (else an empty dict).
+
+    ``objects``: per object the grasps kept, positives and negatives, the targets and the candidates tried (from
+    the file's metadata: how far each object's set got), the success rate among the kept antipodal and near-miss
+    candidates. ``placed``: the placed scene grasps, how many are free of the support and the neighbours, how many
+    are positives (object-level success and free), and the re-simulation check: how many were rolled out again in
+    their scene and how often the label changed (both ways).
+    """
+    out: dict[str, Any] = {}
+    if "object_grasps.parquet" in files:
+        path = root / "object_grasps.parquet"
+        meta = json.loads((pq.read_schema(path).metadata or {}).get(META_KEY, b"{}")).get("tasks", {})
+        t = pq.read_table(path, columns=["object_name", "candidate", "success"])
+        names = np.asarray(t.column("object_name").to_pylist(), dtype=object)
+        kind = np.asarray(t.column("candidate").to_pylist(), dtype=object)
+        ok = t.column("success").to_numpy(zero_copy_only=False).astype(bool)
+        objects = {}
+        for name in sorted(set(names) | set(meta)):
+            sel = names == name
+            m = meta.get(name, {})
+            near = sel & (kind == "near_miss")
+            objects[name] = {
+                "grasps": int(sel.sum()),
+                "positives": int((sel & ok).sum()),
+                "negatives": int((sel & ~ok).sum()),
+                "target_positives": m.get("target_positives"),
+                "target_negatives": m.get("target_negatives"),
+                "tried": m.get("tried"),
+                "reached": m.get("reached"),
+                "near_miss": int(near.sum()),
+                "near_miss_success_rate": _rate(int((near & ok).sum()), int(near.sum())),
+            }
+        out["objects"] = objects
+    if "placed_grasps.parquet" in files:
+        t = pq.read_table(root / "placed_grasps.parquet",
+                          columns=["scene_id", "scene_code", "object_success", "success", "rescene_outcome",
+                                   "rescene_success"])
+        code = t.column("scene_code").to_numpy()
+        ok = t.column("success").to_numpy(zero_copy_only=False).astype(bool)
+        obj_ok = t.column("object_success").to_numpy(zero_copy_only=False).astype(bool)
+        checked = t.column("rescene_outcome").to_numpy() >= 0
+        re_ok = np.asarray([bool(v) for v in t.column("rescene_success").to_pylist()])
+        free = code < 0
+        pos, neg = checked & obj_ok, checked & ~obj_ok
+        out["placed"] = {
+            "grasps": len(t),
+            "scenes": len(set(t.column("scene_id").to_pylist())),
+            "free": int(free.sum()),
+            "support_collisions": int((code == 0).sum()),
+            "clutter_collisions": int((code == 2).sum()),
+            "positives": int(ok.sum()),
+            "rescene_checked": int(checked.sum()),
+            "rescene_changed": int((checked & (re_ok != obj_ok)).sum()),
+            "rescene_change_rate": _rate(int((checked & (re_ok != obj_ok)).sum()), int(checked.sum())),
+            "rescene_lost": _rate(int((pos & ~re_ok).sum()), int(pos.sum())),
+            "rescene_gained": _rate(int((neg & re_ok).sum()), int(neg.sum())),
+        }
+    return out
 
 
 def _schema_doc(schema: pa.Schema) -> list[dict[str, str]]:
@@ -314,8 +386,18 @@ def render_card(card: Mapping[str, Any]) -> str:
         "camera-to-world), RGB, depth, segmentation, point clouds |",
         f"| `objects/<name>.h5` | {c['objects']} objects: mesh, convex parts, mass properties, stable poses |",
     ]
+    sets = card.get("object_sets", {})
+    if "objects" in sets:
+        lines.append("| `object_grasps.parquet` | each object's object-centric grasp set: grasps over the whole object "
+                     "labelled in free space |")
+    if "placed" in sets:
+        lines.append("| `placed_grasps.parquet` | those sets placed in the scenes, kept or rejected by a collision "
+                     "check against the support and the neighbours |")
     if any(k.startswith("acronym/") for k in card["files"]):
-        lines.append("| `acronym/<name>.h5` | each object's grasps in the ACRONYM format (mesh: `acronym/meshes/`) |")
+        what = "object-centric set (free-space labels)" if "objects" in sets else "grasps"
+        lines.append(f"| `acronym/<name>.h5` | each object's {what} in the ACRONYM format (mesh: `acronym/meshes/`) |")
+    if any(k.startswith("graspgen/") for k in card["files"]):
+        lines.append("| `graspgen/` | the object-centric sets in GraspGen's layout (splits, one JSON per object) |")
     lines += [
         "| `config.yaml` | the resolved config (`gen run --config config.yaml` makes the dataset again) |",
         "| `card.json` | this card as data, with every file's sha256 and every shard key |",
@@ -340,6 +422,7 @@ def render_card(card: Mapping[str, Any]) -> str:
         counts = " | ".join(str(n) for n in o["outcomes"])
         lines.append(f"| {name} | {o['scenes']} | {o['grasps']} | {counts} | {rate} |")
     lines += ["", "Columns 0-5 are the outcome codes above.", ""]
+    lines += _object_set_lines(sets)
     lines += ["## Labels", ""]
     if card["labels"]:
         lines += [
@@ -425,6 +508,47 @@ def render_card(card: Mapping[str, Any]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _object_set_lines(sets: Mapping[str, Any]) -> list[str]:
+    """The card's section on the object-centric sets (nothing when the dataset has none)."""
+    lines: list[str] = []
+    if "objects" in sets:
+        lines += [
+            "## Object-centric grasp sets",
+            "",
+            "Per object: grasps sampled over the whole object and labelled in free space (`object_grasps.parquet`), "
+            "kept until the targets were met or the candidate budget was spent.",
+            "",
+            "| object | positives | target | negatives | target | tried | reached | near misses | their success |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: |",
+        ]
+        for name, o in sets["objects"].items():
+            rate = "-" if o["near_miss_success_rate"] is None else f"{100 * o['near_miss_success_rate']:.1f}%"
+            reached = "-" if o["reached"] is None else ("yes" if o["reached"] else "no")
+            lines.append(f"| {name} | {o['positives']} | {fmt(o['target_positives'])} | {o['negatives']} | "
+                         f"{fmt(o['target_negatives'])} | {fmt(o['tried'])} | {reached} | {o['near_miss']} | {rate} |")
+        lines.append("")
+    if "placed" in sets:
+        p = sets["placed"]
+        lines += [
+            "### Placed in the scenes",
+            "",
+            f"{p['grasps']} object grasps placed in {p['scenes']} scenes: {p['free']} free of the support and the "
+            f"neighbours ({p['support_collisions']} hit the support, {p['clutter_collisions']} a neighbour), "
+            f"{p['positives']} positives (object-level success and free: ACRONYM's scene label).",
+            "",
+        ]
+        if p["rescene_checked"]:
+            lines += [
+                f"Re-simulation check: {p['rescene_checked']} placed free grasps rolled out again in their scene "
+                f"(table protocol); the label changed for {p['rescene_changed']} "
+                f"({fmt(None if p['rescene_change_rate'] is None else 100 * p['rescene_change_rate'])}%): "
+                f"positives lost {fmt(None if p['rescene_lost'] is None else 100 * p['rescene_lost'])}%, "
+                f"negatives gained {fmt(None if p['rescene_gained'] is None else 100 * p['rescene_gained'])}%.",
+                "",
+            ]
+    return lines
 
 
 def _md_text(text: str) -> str:

@@ -261,13 +261,18 @@ def join_scene(parts: Sequence[tuple[str, pa.Table]], source_key: str) -> pa.Tab
 
 
 def write_grasps_parquet(
-    path: str | Path, scenes: Sequence[pa.Table], *, row_group_rows: int, metadata: Mapping[bytes, bytes]
+    path: str | Path,
+    scenes: Sequence[pa.Table],
+    *,
+    row_group_rows: int,
+    metadata: Mapping[bytes, bytes],
 ) -> int:
     """Write the merged scenes to one Parquet file, whole scenes per row group; returns the number of rows.
 
     The settings are those of :func:`graspgen.io.files.write_parquet` (zstd 3, dictionaries, statistics, no pandas
     metadata), so the bytes are a function of the tables alone. Row groups: consecutive scenes packed until the
-    next would take the group past ``row_group_rows`` rows.
+    next would take the group past ``row_group_rows`` rows. The same goes for any list of tables of one schema
+    (objects' grasp sets: whole objects per group).
     """
     if not scenes:
         raise InputError("dataset: no scene to write")
@@ -305,7 +310,11 @@ def write_grasps_parquet(
 
 
 def _scene_of(table: pa.Table) -> str:
-    return table.column("scene_id")[0].as_py() if len(table) else "(empty)"
+    """The first id column's first value (the scene, or the object of an object set), for messages."""
+    for name in ("scene_id", "object_name"):
+        if name in table.column_names and len(table):
+            return str(table.column(name)[0].as_py())
+    return "(empty)"
 
 
 def dataset_dir(path: str | Path) -> Path:

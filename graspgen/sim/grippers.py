@@ -12,8 +12,9 @@ The hand base (the robot flange for the 2F-85, the hand frame for the Panda) sit
 Modelling, the same for every gripper:
 
 * **A gripper is a file.** Each bundled gripper is a YAML file in ``assets/grippers`` (``robotiq_2f85.yaml``,
-  ``box_jaw.yaml``, ``panda/panda.yaml``), and :func:`load_gripper` takes a registered name or the path of such a
-  file written for another hand (the format: :func:`read_gripper`; ``assets/grippers/README.md``).
+  ``robotiq_2f85/robotiq_2f85_mesh.yaml``, ``box_jaw.yaml``, ``panda/panda.yaml``), and :func:`load_gripper` takes
+  a registered name or the path of such a file written for another hand (the format: :func:`read_gripper`;
+  ``assets/grippers/README.md``).
 * **Geometry: boxes or convex meshes.** A gripper is either boxes given by sizes (``pad_size``, ``finger_size``,
   ``palm_boxes``: the 2F-85 and the box jaw) or collision pieces per body (``palm_geoms``, ``finger_geoms``,
   ``pad_geom``: :class:`Box` or convex :class:`Mesh`, in the TCP frame with the jaws open; the Panda, from
@@ -21,8 +22,14 @@ Modelling, the same for every gripper:
   (``assets/make_grippers.py`` makes the Panda's). The pads stay separate geoms either way.
 * **Two prismatic jaws.** Every gripper is a parallel-jaw gripper whose two jaws slide along +-x; the left jaw is
   the right one turned 180 degrees about z. The real Robotiq 2F-85 closes its fingers with a 4-bar linkage; its
-  pads stay parallel but also travel along z (about 1 cm over the stroke) and the linkage sweeps outwards when
-  open. We neglect both: pads move along x only and the links are approximated by one box per finger.
+  pads stay parallel but also travel along z (13.7 mm over the stroke) and the linkage sweeps outwards when open.
+  ``robotiq_2f85`` (boxes) neglects both: pads move along x only, one box per finger. A gripper with a
+  :class:`Linkage` (``robotiq_2f85_mesh``) keeps them: each jaw also has a z slide ``<side>_lift`` and carries its
+  two links as hinged child bodies (``<side>_driver``, ``<side>_follower``: a link turning about its palm pivot
+  while the finger translates is the link turning by the same angle about its joint on the finger), every one of
+  those joints tied to the jaw slide by a quartic joint equality ``<side>_<joint>_coupling`` fitted to the linkage's
+  circle. The jaw slide stays the one driven coordinate, so everything below holds for both kinds; whoever sets
+  the slides' qpos by hand applies :func:`linkage_couplings` too.
 * **Jaw joint coordinate = half the width.** Each jaw's slide joint ``q`` is the distance of its pad's contact face
   from the TCP plane x = 0, so pad separation (width) = ``q_left + q_right``; range ``[min_width, max_width] / 2``,
   ``qpos0 = max_width / 2`` (a freshly built gripper is open).
@@ -121,6 +128,9 @@ __all__ = [
     "gripper_width",
     "pad_geom_ids",
     "gripper_geom_ids",
+    "Linkage",
+    "LinkageCouplings",
+    "linkage_couplings",
 ]
 
 #: Contact bitmasks of every gripper geom: collide with default geoms (contype = conaffinity = 1: objects, ground),
@@ -239,6 +249,87 @@ def _check_shapes(name: str, value: Any) -> tuple[Shape, ...]:
     return shapes
 
 
+#: Largest error allowed of the quartics that couple a linkage's joints to the jaw slide: pad height (m) and link
+#: angle (rad) over the stroke.
+_LINKAGE_FIT_TOL = (5e-5, 2e-3)
+
+
+@dataclass(frozen=True)
+class Linkage:
+    """A parallelogram (4-bar) finger linkage, as on the Robotiq 2F-85: two links per finger, the *driver* and the
+    *follower*, turn about pivots fixed in the palm, and the finger they carry (the coupler: the finger link and its
+    pad, :attr:`GripperSpec.finger_geoms` and :attr:`GripperSpec.pad_geom`) keeps its orientation, so every point of
+    it, the pad included, moves on a circle of the crank's radius: the pads stay parallel and rise or sink along z
+    as they close. Given for the right finger (+x), in the gripper file's frame, with the jaws open; the left finger
+    is the same turned 180 degrees about z. All points are (x, z) pairs (m) in the closing/approach plane y = 0.
+    """
+
+    pivot: tuple[float, float]
+    """(x, z) (m) of the driver link's pivot on the palm (TCP frame)."""
+    crank: tuple[float, float]
+    """(x, z) (m) from the driver's pivot to its joint on the finger, jaws open; the follower's crank is the same
+    (a parallelogram), so its joint on the finger is ``follower_pivot + crank``."""
+    follower_pivot: tuple[float, float]
+    """(x, z) (m) of the follower link's pivot on the palm (TCP frame)."""
+    driver_geoms: tuple[Shape, ...]
+    """Collision pieces of the right driver link, in the TCP frame with the jaws open."""
+    follower_geoms: tuple[Shape, ...] = ()
+    """Collision pieces of the right follower link, in the TCP frame with the jaws open (may be empty)."""
+    driver_mass: float = 0.03
+    """Mass (kg) of one driver link."""
+    follower_mass: float = 0.03
+    """Mass (kg) of one follower link."""
+
+    def __post_init__(self) -> None:
+        for key in ("pivot", "crank", "follower_pivot"):
+            object.__setattr__(self, key, check_vector(f"linkage.{key}", getattr(self, key), 2))
+        check("linkage.crank", float(np.hypot(*self.crank)) > 1e-4, "be longer than 0.1 mm", self.crank)
+        object.__setattr__(self, "driver_geoms", _check_shapes("linkage.driver_geoms", self.driver_geoms))
+        check("linkage.driver_geoms", bool(self.driver_geoms), "hold at least one piece", self.driver_geoms)
+        object.__setattr__(self, "follower_geoms", _check_shapes("linkage.follower_geoms", self.follower_geoms))
+        for key in ("driver_mass", "follower_mass"):
+            object.__setattr__(self, key, check_number(f"linkage.{key}", getattr(self, key), low=0.0,
+                                                       low_open=True))
+
+    @property
+    def radius(self) -> float:
+        """Crank length (m): the radius of every finger point's path."""
+        return float(np.hypot(*self.crank))
+
+    def angle(self, shift) -> np.ndarray:
+        """Closing rotation (rad) of the links when the pad has moved ``shift`` (m, scalar or array; <= 0 closing)
+        along x from the open position: the crank's angle from +x grows as the finger moves in."""
+        cx, cz = self.crank
+        return np.arccos(np.clip((cx + np.asarray(shift, dtype=float)) / self.radius, -1.0, 1.0)) - np.arctan2(cz, cx)
+
+    def rise(self, shift) -> np.ndarray:
+        """The pad's displacement (m) along z (+: towards the object) when it has moved ``shift`` (m) along x."""
+        cx, cz = self.crank
+        phi = np.arctan2(cz, cx) + self.angle(shift)
+        return self.radius * np.sin(phi) - cz
+
+    def couplings(self, min_width: float, max_width: float) -> dict[str, tuple[float, ...]]:
+        """Quartic coefficients ``(a0, .., a4)`` of each joint driven by the jaw slide ``q`` (the pad face's x), in
+        MuJoCo's joint-equality form ``q1 - q1_ref = sum a_k (q - max_width / 2)^k``: ``lift`` (the pad's z, m),
+        ``driver`` and ``follower`` (the links' angle, rad). Least squares on 64 Chebyshev nodes of the stroke;
+        :class:`SettingsError` when the path is not reachable or a fit is off by more than 0.05 mm / 2 mrad."""
+        lo = (min_width - max_width) / 2.0
+        check("linkage.crank", (self.crank[0] + lo) / self.radius >= -1.0,
+              f"reach the closed pads: its x ({self.crank[0]:.4g} m) plus the closing travel must stay within the "
+              f"crank's radius ({self.radius:.4g} m)", self.crank)
+        nodes = lo / 2.0 * (1.0 - np.cos(np.linspace(0.0, np.pi, 64)))
+        fine = np.linspace(lo, 0.0, 1001)
+        out = {}
+        for key, fn, tol in (("lift", self.rise, _LINKAGE_FIT_TOL[0]), ("driver", self.angle, _LINKAGE_FIT_TOL[1])):
+            coef = np.polynomial.polynomial.polyfit(nodes, fn(nodes) - fn(0.0), 4)
+            err = float(np.abs(np.polynomial.polynomial.polyval(fine, coef) - (fn(fine) - fn(0.0))).max())
+            check("linkage", err <= tol, f"have a path a quartic follows over the stroke (the {key} fit is off by "
+                  f"{err:.3g}, more than {tol:g})", self.crank)
+            out[key] = tuple(float(c) for c in coef)
+        out["follower"] = out["driver"]
+        return out
+
+
 @dataclass(frozen=True)
 class GripperSpec:
     """A parallel-jaw gripper, as data. All lengths in metres, in the TCP frame (see the module docstring).
@@ -294,6 +385,9 @@ class GripperSpec:
     """The right pad's collision piece, in the TCP frame with the jaws open: its contact face (its smallest x) lies
     at ``x = max_width / 2`` (within 0.5 mm; the model puts it there exactly) and it straddles y = 0 and z = 0.
     None: a box of ``pad_size``."""
+    linkage: Linkage | None = None
+    """The finger linkage (:class:`Linkage`): the fingers then follow its path (the pads rise or sink along z as
+    they close) and its links collide too. None: the jaws slide along x only."""
     file: str = field(default="", compare=False)
     """The gripper file this spec was read from ('' for one made in Python)."""
 
@@ -337,6 +431,10 @@ class GripperSpec:
             check("pad_geom", lo[1] <= 0.0 <= hi[1] and lo[2] <= 0.0 <= hi[2],
                   "straddle the TCP (y = 0 and z = 0 within its extents)",
                   f"y {lo[1]:.4g}..{hi[1]:.4g}, z {lo[2]:.4g}..{hi[2]:.4g}")
+        check("linkage", self.linkage is None or isinstance(self.linkage, Linkage), "be a Linkage or None",
+              _short(self.linkage))
+        if self.linkage is not None:
+            self.linkage.couplings(self.min_width, self.max_width)  # reachable and fitted, or SettingsError
         check("source", isinstance(self.source, str), "be a string", self.source)
         check("file", isinstance(self.file, str), "be a string", self.file)
 
@@ -358,8 +456,19 @@ class GripperSpec:
     @property
     def uses_meshes(self) -> bool:
         """Whether any body collides with :class:`Mesh` pieces (not only boxes)."""
-        pieces = (*self.palm_geoms, *self.finger_geoms, *(() if self.pad_geom is None else (self.pad_geom,)))
-        return any(isinstance(s, Mesh) for s in pieces)
+        return any(isinstance(s, Mesh) for s in self.pieces)
+
+    @property
+    def pieces(self) -> tuple[Shape, ...]:
+        """Every collision piece given as a shape: palm, finger, pad and linkage pieces (not the size boxes)."""
+        link = () if self.linkage is None else (*self.linkage.driver_geoms, *self.linkage.follower_geoms)
+        return (*self.palm_geoms, *self.finger_geoms, *(() if self.pad_geom is None else (self.pad_geom,)), *link)
+
+    def pad_rise(self, width) -> np.ndarray:
+        """Displacement (m) of the pads along z (+: towards the object) at pad separation ``width`` (m, scalar or
+        array) from where they are when open: 0 without a linkage."""
+        shift = (np.asarray(width, dtype=float) - self.max_width) / 2.0
+        return np.zeros_like(shift) if self.linkage is None else self.linkage.rise(shift)
 
     def to_dict(self) -> dict:
         """Plain-data view (for logs / metadata files); also the gripper file format: ``write_gripper`` writes it and
@@ -373,6 +482,13 @@ class GripperSpec:
                 value = [_shape_dict(s) for s in value]
             elif f.name == "pad_geom":
                 value = None if value is None else _shape_dict(value)
+            elif f.name == "linkage":
+                value = None if value is None else {
+                    "pivot": list(value.pivot), "crank": list(value.crank),
+                    "follower_pivot": list(value.follower_pivot),
+                    "driver_geoms": [_shape_dict(s) for s in value.driver_geoms],
+                    "follower_geoms": [_shape_dict(s) for s in value.follower_geoms],
+                    "driver_mass": value.driver_mass, "follower_mass": value.follower_mass}
             elif isinstance(value, tuple):
                 value = list(value)
             out[f.name] = value
@@ -388,7 +504,8 @@ _MAX_HULL_EXCESS = 0.05
 GRIPPER_FILE_SUFFIXES = (".yaml", ".yml", ".json")
 #: The folder of the bundled gripper files.
 GRIPPERS_DIR = Path(__file__).resolve().parents[2] / "assets" / "grippers"
-_BUNDLED = {"box_jaw": "box_jaw.yaml", "panda": "panda/panda.yaml", "robotiq_2f85": "robotiq_2f85.yaml"}
+_BUNDLED = {"box_jaw": "box_jaw.yaml", "panda": "panda/panda.yaml", "robotiq_2f85": "robotiq_2f85.yaml",
+            "robotiq_2f85_mesh": "robotiq_2f85/robotiq_2f85_mesh.yaml"}
 #: sha256 (first 16 hex digits) of every file the bundled grippers are read from, relative to GRIPPERS_DIR. The
 #: bundled grippers are part of the library, so their files must count as code: a stage's content key holds the
 #: digest of this module, and with it these digests, so editing a bundled file (and then this table, which
@@ -399,6 +516,16 @@ BUNDLED_DIGESTS = {
     "panda/hand.obj": "feaab1d7eddd6fcb",
     "panda/pad.obj": "88587d01d351de87",
     "panda/panda.yaml": "f5ac329df019f158",
+    "robotiq_2f85/airo/robotiq_arg2f_85_inner_finger.obj": "f6507cef254ba4a1",
+    "robotiq_2f85/airo/robotiq_arg2f_85_inner_knuckle.obj": "81dcdd59590b823a",
+    "robotiq_2f85/airo/robotiq_arg2f_85_outer_finger.obj": "135d80498c0bdee5",
+    "robotiq_2f85/airo/robotiq_arg2f_85_outer_knuckle.obj": "bd3a4fb67e22d904",
+    "robotiq_2f85/airo/robotiq_arg2f_base_link.obj": "912592cfa4056b44",
+    "robotiq_2f85/driver.obj": "342523646af15430",
+    "robotiq_2f85/finger.obj": "49b214ca3971d013",
+    "robotiq_2f85/follower.obj": "71cda5c7693f5f7a",
+    "robotiq_2f85/palm.obj": "bfdebd31d584551f",
+    "robotiq_2f85/robotiq_2f85_mesh.yaml": "0069d5d15b9a0240",
     "robotiq_2f85.yaml": "6db6df18957fc96a",
 }
 #: Keys a gripper file may have besides the :class:`GripperSpec` fields.
@@ -480,6 +607,29 @@ def _shapes(key: str, value: Any, base_dir: Path, shift: np.ndarray) -> list[Sha
     return out
 
 
+_LINKAGE_KEYS = ("pivot", "crank", "follower_pivot", "driver_geoms", "follower_geoms", "driver_mass",
+                 "follower_mass")
+
+
+def _linkage(value: Any, base_dir: Path, shift: np.ndarray) -> Linkage:
+    """The :class:`Linkage` of a file's ``linkage`` mapping (pivots moved by ``shift`` into the TCP frame)."""
+    if not isinstance(value, Mapping):
+        raise SettingsError(f"linkage: must be a mapping ({', '.join(_LINKAGE_KEYS)}), got {_short(value)}")
+    unknown = sorted(str(k) for k in set(value) - set(_LINKAGE_KEYS))
+    if unknown:
+        raise SettingsError(f"linkage.{unknown[0]}: unknown key; valid keys: {', '.join(_LINKAGE_KEYS)}")
+    missing = [k for k in ("pivot", "crank", "follower_pivot", "driver_geoms") if k not in value]
+    if missing:
+        raise SettingsError(f"linkage.{missing[0]}: missing")
+    values = dict(value)
+    for key in ("pivot", "follower_pivot"):
+        x, z = check_vector(f"linkage.{key}", values[key], 2)
+        values[key] = (x, z + shift[2])
+    for key in ("driver_geoms", "follower_geoms"):
+        values[key] = tuple(_shapes(f"linkage.{key}", values.get(key) or [], base_dir, shift))
+    return Linkage(**values)
+
+
 def gripper_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike = ".", file: str = "") -> GripperSpec:
     """A :class:`GripperSpec` from the contents of a gripper file (see :func:`read_gripper`); mesh files are
     relative to ``base_dir``. :class:`SettingsError` names the offending key."""
@@ -505,6 +655,8 @@ def gripper_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike = 
         values["pad_geom"] = pad[0]
         lo, hi = pad[0].bounds
         values.setdefault("pad_size", tuple(hi - lo))
+    if values.get("linkage") is not None:
+        values["linkage"] = _linkage(values["linkage"], base, shift)
     boxes = values.get("palm_boxes") or []
     if not isinstance(boxes, (list, tuple)) or not all(isinstance(b, Mapping) and "size" in b for b in boxes):
         raise SettingsError(f"palm_boxes: must be a list of boxes {{size, pos}}, got {_short(boxes)}")
@@ -600,8 +752,7 @@ def gripper_files(name_or_path: str | os.PathLike) -> tuple[str, ...]:
         return ()
     spec = load_gripper(name_or_path)
     files = [spec.file] if spec.file else []
-    pieces = (*spec.palm_geoms, *spec.finger_geoms, *(() if spec.pad_geom is None else (spec.pad_geom,)))
-    for piece in pieces:
+    for piece in spec.pieces:
         if isinstance(piece, Mesh) and piece.file and piece.file not in files:
             files.append(piece.file)
     return tuple(files)
@@ -781,6 +932,63 @@ def _in_jaw(shape: Shape, face_x: float, sign: float) -> Shape:
     return Mesh((shape.array - [face_x, 0.0, 0.0]) * flip, file=shape.file)
 
 
+#: Armature of the joints a linkage drives from the jaw slide (the pad's z slide, kg; the links' hinges, kg m^2):
+#: small next to the jaw's, enough to keep their coupling constraints' effective mass away from zero.
+_LIFT_ARMATURE = 0.05
+_LINK_ARMATURE = 1e-4
+
+
+def _shifted(shape: Shape, offset) -> Shape:
+    """``shape`` moved by ``-offset`` (into the frame of a body at ``offset``)."""
+    if isinstance(shape, Box):
+        return Box(size=shape.size, pos=tuple(np.subtract(shape.pos, offset)))
+    return Mesh(shape.array - np.asarray(offset, dtype=float), file=shape.file)
+
+
+def _add_linkage(spec: GripperSpec, model: mujoco.MjSpec, jaw: mujoco.MjsBody, *, p: str, side: str, sign: float,
+                 face_x: float, friction: str, first_piece: int) -> None:
+    """The linkage of one jaw: a z slide ``<side>_lift`` on the jaw (the pad's rise), and the driver and follower
+    links as child bodies of the jaw hinged where they hold the finger (a link turning about its palm pivot while the
+    finger it holds translates is the same as the link turning by the same angle about its joint on the finger).
+    Their joints follow the jaw slide through the equalities ``<side>_<joint>_coupling`` (see :func:`_build_into`).
+    Link geoms are named ``<side>_finger_<k>`` (finger pieces), so every helper counts them as finger geoms."""
+    link = spec.linkage
+    flip = np.array([sign, sign, 1.0])
+    lift = jaw.add_joint()
+    lift.name = f"{p}{side}_lift"
+    lift.type = mujoco.mjtJoint.mjJNT_SLIDE
+    lift.axis = [0.0, 0.0, 1.0]
+    lift.armature = _LIFT_ARMATURE
+    k = first_piece
+    for name, pivot, geoms, mass in (("driver", link.pivot, link.driver_geoms, link.driver_mass),
+                                     ("follower", link.follower_pivot, link.follower_geoms, link.follower_mass)):
+        hinge_tcp = np.array([pivot[0] + link.crank[0], 0.0, pivot[1] + link.crank[1]])
+        hinge = (hinge_tcp - [face_x, 0.0, 0.0]) * flip  # in the jaw's frame
+        body = jaw.add_body()
+        body.name = f"{p}{side}_{name}"
+        body.pos = list(hinge)
+        body.gravcomp = 1.0
+        joint = body.add_joint()
+        joint.name = f"{p}{side}_{name}"
+        joint.type = mujoco.mjtJoint.mjJNT_HINGE
+        joint.axis = [0.0, -sign, 0.0]  # closing turns the right crank from +x towards +z: about -y
+        joint.armature = _LINK_ARMATURE
+        shapes = [_shifted(_in_jaw(g, face_x, sign), hinge) for g in geoms]
+        for shape in shapes:
+            _add_shape(model, body, f"{p}{side}_finger_{k}", shape, mode=friction, rgba=_FINGER_RGBA,
+                       friction=spec.pad_friction, condim=3)
+            k += 1
+        body.explicitinertial = True
+        body.mass = mass
+        if shapes:
+            lo, hi = _bounds_of(shapes)
+            body.ipos = list((lo + hi) / 2.0)
+            body.inertia = _box_inertia(mass, hi - lo)
+        else:
+            body.ipos = [0.0, 0.0, 0.0]
+            body.inertia = _box_inertia(mass, [0.01, 0.01, 0.01])
+
+
 _PALM_RGBA = (0.25, 0.25, 0.28, 1.0)
 _PAD_RGBA = (0.85, 0.45, 0.1, 1.0)
 _FINGER_RGBA = (0.45, 0.45, 0.5, 1.0)
@@ -871,6 +1079,9 @@ def _build_into(spec: GripperSpec, parent, *, p: str, friction: str, model: mujo
             jlo, jhi = _bounds_of([pad, *links])
             jaw.ipos = list((jlo + jhi) / 2.0)
             jaw.inertia = _box_inertia(spec.finger_mass, jhi - jlo)
+        if spec.linkage is not None:
+            _add_linkage(spec, model, jaw, p=p, side=side, sign=sign, face_x=face_x, friction=friction,
+                         first_piece=len(links))
 
     tendon = model.add_tendon()
     tendon.name = f"{p}width"
@@ -896,6 +1107,19 @@ def _build_into(spec: GripperSpec, parent, *, p: str, friction: str, model: mujo
     couple.data = [0.0, 1.0, 0.0, 0.0, 0.0] + [0.0] * (len(couple.data) - 5)  # q_left - ref = q_right - ref
     couple.solref = list(_WELD_SOLREF)
     couple.solimp = list(_WELD_SOLIMP)
+
+    if spec.linkage is not None:
+        for side in ("left", "right"):
+            for joint, coef in spec.linkage.couplings(spec.min_width, spec.max_width).items():
+                eq = model.add_equality()
+                eq.name = f"{p}{side}_{joint}_coupling"
+                eq.type = mujoco.mjtEq.mjEQ_JOINT
+                eq.objtype = mujoco.mjtObj.mjOBJ_JOINT
+                eq.name1 = f"{p}{side}_{joint}"
+                eq.name2 = f"{p}{side}_slide"
+                eq.data = list(coef) + [0.0] * (len(eq.data) - 5)
+                eq.solref = list(_WELD_SOLREF)
+                eq.solimp = list(_WELD_SOLIMP)
 
     weld = model.add_equality()
     weld.name = f"{p}weld"
@@ -1027,8 +1251,58 @@ def set_gripper_width(model: mujoco.MjModel, data: mujoco.MjData, width: float, 
             jid = _id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{prefix}{side}_slide")
             data.qpos[model.jnt_qposadr[jid]] = w / 2.0
             data.qvel[model.jnt_dofadr[jid]] = 0.0
+        couplings = linkage_couplings(model, prefix=prefix)
+        couplings.apply(data.qpos)
+        data.qvel[couplings.dofadr] = 0.0
         mujoco.mj_forward(model, data)
     return w
+
+
+@dataclass(frozen=True)
+class LinkageCouplings:
+    """The joints a gripper's linkage drives from its jaw slides (the equalities ``<side>_<joint>_coupling``), read
+    from a compiled model, to pose them by hand: whoever sets the jaw slides' ``qpos`` directly (placing an open
+    gripper, the collision pre-filter) calls :meth:`apply` so that the pads and links sit where the linkage puts
+    them. Empty (``apply`` does nothing) for a gripper without a linkage."""
+
+    qposadr: np.ndarray
+    """(k,) int: qpos address of each driven joint."""
+    dofadr: np.ndarray
+    """(k,) int: dof address of each driven joint."""
+    slide_qposadr: np.ndarray
+    """(k,) int: qpos address of the jaw slide that drives it."""
+    ref: np.ndarray
+    """(k,) float: each driven joint's reference (``qpos0``; m or rad)."""
+    slide_ref: np.ndarray
+    """(k,) float: the driving slide's reference (``qpos0``, m)."""
+    coef: np.ndarray
+    """(k, 5) float: quartic coefficients, ``q - ref = sum coef[j] (q_slide - slide_ref)^j``."""
+
+    def apply(self, qpos: np.ndarray) -> None:
+        """Set the driven joints in ``qpos`` (modified in place) from the jaw slides' values there."""
+        if len(self.qposadr):
+            d = qpos[self.slide_qposadr] - self.slide_ref
+            qpos[self.qposadr] = self.ref + self.coef[:, 0] + d * (self.coef[:, 1] + d * (
+                self.coef[:, 2] + d * (self.coef[:, 3] + d * self.coef[:, 4])))
+
+
+def linkage_couplings(model: mujoco.MjModel, *, prefix: str = "gripper/") -> LinkageCouplings:
+    """The :class:`LinkageCouplings` of the gripper named ``prefix`` in ``model`` (found by equality names)."""
+    rows = []
+    for eq in range(model.neq):
+        name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_EQUALITY, eq) or ""
+        local = name[len(prefix):] if name.startswith(prefix) else ""
+        if model.eq_type[eq] != mujoco.mjtEq.mjEQ_JOINT or not re.fullmatch(r"(left|right)_\w+_coupling", local):
+            continue
+        j1, j2 = int(model.eq_obj1id[eq]), int(model.eq_obj2id[eq])
+        q1, q2 = int(model.jnt_qposadr[j1]), int(model.jnt_qposadr[j2])
+        rows.append((q1, int(model.jnt_dofadr[j1]), q2, float(model.qpos0[q1]), float(model.qpos0[q2]),
+                     np.array(model.eq_data[eq][:5], dtype=float)))
+    cols = list(zip(*rows)) if rows else [(), (), (), (), (), ()]
+    return LinkageCouplings(
+        qposadr=np.array(cols[0], dtype=np.int64), dofadr=np.array(cols[1], dtype=np.int64),
+        slide_qposadr=np.array(cols[2], dtype=np.int64), ref=np.array(cols[3], dtype=float),
+        slide_ref=np.array(cols[4], dtype=float), coef=np.array(cols[5], dtype=float).reshape(len(rows), 5))
 
 
 def gripper_width(model: mujoco.MjModel, data: mujoco.MjData, *, prefix: str = "gripper/") -> float:

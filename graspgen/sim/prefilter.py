@@ -4,16 +4,27 @@ A candidate is a TCP pose in the world and a contact width. The gripper is opene
 (clipped to the gripper's range: the rollout opens it the same way), then placed at ``num_approach_samples`` poses
 along its approach line, from the pre-grasp pose ``approach_distance`` back along the approach axis (-z of the TCP
 frame) to the grasp pose itself. At each pose only ``mj_kinematics`` + ``mj_collision`` run (no ``mj_step``), and
-every contact between a gripper geom and another geom with signed distance ``< margin`` is a collision.
+every contact between a gripper geom and another geom with signed distance ``< margin`` is a collision, except that a
+finger may touch the target up to :data:`TARGET_TOUCH_DEPTH` deep (the touch rule below).
 
 Result codes (the rollout outcome codes of ARCHITECTURE.md for the same events):
 
 * ``-1`` (:data:`FREE`): no collision at any checked pose;
 * ``0`` (:data:`GROUND`): the gripper hits the ground or a support (any geom that is not part of an object);
-* ``1`` (:data:`TARGET`): the gripper hits the target object. This includes the final grasp pose: the *open*
-  fingers must not touch the target there (the grasp closes from ``width + width_margin``), and along the approach
-  any contact with the target is a collision;
+* ``1`` (:data:`TARGET`): the gripper hits the target object, by the touch rule below. This includes the final
+  grasp pose: the *open* fingers must not press into the target there (the grasp closes from
+  ``width + width_margin``);
 * ``2`` (:data:`CLUTTER`): the gripper hits another object.
+
+The touch rule (the same in the rollout, :class:`graspgen.sim.lift.LiftSimulator`, so code 1 means one thing): a
+finger (a geom of either jaw: pad or finger link) may touch the target, pressing up to :data:`TARGET_TOUCH_DEPTH`
+into it, as a real finger brushes an object on the way in; deeper is a collision. Any other gripper geom (the palm)
+touching the target is a collision. Here the depth is MuJoCo's penetration depth (``-dist``) at the checked pose; a
+contact with the ground, a support or another object counts at any depth (``dist < margin``). ``margin`` shifts the
+target's limits too: a finger hits the target when ``dist < margin - TARGET_TOUCH_DEPTH``, the palm when
+``dist < margin``. Which geoms are fingers: :func:`touch_allowance` (the jaw bodies' geoms). The rollout runs this
+same static check at each of its checks of placement and approach, on the gripper as commanded and the scene as it
+stood (``LiftSimulator._static_code``), besides its live contacts and the objects' motion.
 
 Which reason is reported: the poses are checked in the order the gripper moves (pre-grasp first, grasp pose last)
 and the first pose with a collision decides, as it would in a rollout; when that pose collides with several kinds of
@@ -41,7 +52,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from graspgen.sim.grippers import GripperSpec, attach_gripper, gripper_geom_ids, jaw_opening
+from graspgen.sim.grippers import GripperSpec, attach_gripper, gripper_geom_ids, jaw_opening, linkage_couplings
 from graspgen.validation import check_instance, check_number, check_positive_int, check_transforms
 
 __all__ = [
@@ -52,8 +63,10 @@ __all__ = [
     "CODE_NAMES",
     "OBJECT_PREFIX",
     "PrefilterParams",
+    "TARGET_TOUCH_DEPTH",
     "CollisionChecker",
     "approach_offsets",
+    "touch_allowance",
 ]
 
 FREE = -1
@@ -69,6 +82,31 @@ CODE_NAMES = {FREE: "free", GROUND: "collision_with_ground", TARGET: "collision_
 """Human-readable name of each code."""
 OBJECT_PREFIX = "obj/"
 """Root bodies whose names start with this are objects (targets or clutter); everything else is support."""
+TARGET_TOUCH_DEPTH = 0.002
+"""How deep (m) a finger may press into the target before the touch is a collision with it (code 1): the touch
+rule of the module docstring, applied by this pre-filter and by the rollout (:class:`graspgen.sim.lift.
+LiftSimulator`) alike. The depth is MuJoCo's penetration depth of a jaw geom in the target as it stood before the
+gripper came: here at each checked pose; in the rollout at each check of placement and approach, statically too, with
+the gripper as commanded and the target at its initial pose (a pushed target yields, so its current contacts would
+not tell how far a finger went into it). The palm gets no allowance.
+
+Why 2 mm:
+
+* It is well above MuJoCo's own penetration. Geoms here have no contact margin (MuJoCo's ``margin`` 0: a contact
+  exists only where two geoms overlap, so "touching" is "overlapping"), and the soft contact solver lets a pressed
+  contact sink in: with the gripper's contact softness (solref 4 ms, solimp 0.95-0.99 over 1 mm;
+  :mod:`graspgen.sim.grippers`) a pad pressing with tens of newtons sits 0.1-0.3 mm inside the object. A tolerance
+  at that scale would call a finger that merely rests on the surface in the simulation a collision; 2 mm is ~10x.
+* It is what a brush is on a real hand: a pad or fingertip grazing a surface on the way in compresses its
+  elastomer and flexes the finger by a millimetre or two without shoving the object. The jaws open to ``width +
+  width_margin`` (10 mm of clearance per side by default), so a planned grasp only brushes through curvature, a
+  tilted face or the convex decomposition's bulge over a concave region; a finger that has to go deeper than 2 mm
+  runs into the object.
+* It is below what moves the target: the rollout also calls a target that moved 5 mm or turned 5 degrees a
+  collision (``LiftParams.max_target_shift``, ``max_target_turn``), and 2 mm is less than both (at the edge of a
+  5 cm object 2 mm turn it 4.6 degrees), so a finger that presses deeper than the allowance is caught by depth,
+  not only later by the motion it causes.
+"""
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -102,7 +140,9 @@ class PrefilterParams:
     included); 1 checks the grasp pose only. Default: 5 mm spacing over 0.05 m."""
     margin: float = 0.0
     """Clearance (m): a gripper contact with signed distance below this is a collision. 0 flags any penetration;
-    > 0 demands that much clearance (conservative); < 0 tolerates penetration up to ``-margin``."""
+    > 0 demands that much clearance (conservative); < 0 tolerates penetration up to ``-margin``. A finger's contact
+    with the target is a collision below ``margin - TARGET_TOUCH_DEPTH`` (the touch rule, module docstring); keep 0
+    for labels that mean what the rollout's do."""
     width_margin: float = 0.02
     """The gripper is opened to ``width + width_margin`` (m, >= 0; clipped to the gripper's range). Use the same
     value as :attr:`graspgen.geometry.antipodal.AntipodalParams.width_margin` and as the rollout."""
@@ -120,6 +160,27 @@ def approach_offsets(params: PrefilterParams) -> np.ndarray:
     if params.num_approach_samples == 1:
         return np.zeros(1)
     return np.linspace(params.approach_distance, 0.0, params.num_approach_samples)
+
+
+def touch_allowance(model: mujoco.MjModel, *, prefix: str = "gripper/",
+                    depth: float = TARGET_TOUCH_DEPTH) -> np.ndarray:
+    """``(ngeom,) float``: how deep (m) each geom may press into the target before the touch is a collision (the
+    touch rule of the module docstring): ``depth`` for the geoms of the bodies ``<prefix>left_jaw`` and
+    ``<prefix>right_jaw`` and their descendants (pads and finger links), 0 for every other geom (the palm, and
+    anything that is not the gripper's). The pre-filter and the rollout both classify the gripper's geoms with it."""
+    jaws = []
+    for side in ("left", "right"):
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}{side}_jaw")
+        if body < 0:
+            raise ValueError(f"model: no body named {prefix}{side}_jaw (gripper attached with another prefix?)")
+        jaws.append(body)
+    on_jaw = np.zeros(model.nbody, dtype=bool)
+    for body in range(model.nbody):
+        b = body
+        while b > 0 and b not in jaws:
+            b = int(model.body_parentid[b])
+        on_jaw[body] = b > 0
+    return np.where(on_jaw[model.geom_bodyid], float(depth), 0.0)
 
 
 def _quats(R: np.ndarray) -> np.ndarray:
@@ -173,6 +234,7 @@ class CollisionChecker:
 
         self._free_adr = joint_adr(f"{name_prefix}free")
         self._jaw_adr = (joint_adr(f"{name_prefix}left_slide"), joint_adr(f"{name_prefix}right_slide"))
+        self._couplings = linkage_couplings(model, prefix=name_prefix)  # a linkage's joints follow the jaws
 
         # Geom classes: -1 gripper (never reported), 0 support, 2 object; the target's geoms become 1 per call.
         try:
@@ -183,6 +245,7 @@ class CollisionChecker:
         is_gripper = np.array([(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(name_prefix)
                                for g in range(model.ngeom)], dtype=bool)
         self._is_gripper = is_gripper
+        self._allowance = touch_allowance(model, prefix=name_prefix)
         self._geom_root = model.body_rootid[model.geom_bodyid].astype(np.int64)
         root_names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(b)) or "" for b in self._geom_root]
         self._geom_code = np.where([n.startswith(OBJECT_PREFIX) for n in root_names], CLUTTER, GROUND).astype(np.int8)
@@ -230,7 +293,8 @@ class CollisionChecker:
         """Jaw opening (m) used for contact widths ``widths (n,)``: ``width + width_margin`` clipped to the range."""
         return jaw_opening(widths, self.params.width_margin, self.gripper.min_width, self.gripper.max_width)
 
-    def check(self, T_tcp_world, widths, target_body_name: str, *, return_steps: bool = False):
+    def check(self, T_tcp_world, widths, target_body_name: str, *, return_steps: bool = False,
+              ignore_target: bool = False):
         """Collision code of each candidate (see the module docstring).
 
         Parameters
@@ -244,6 +308,9 @@ class CollisionChecker:
         return_steps
             Also return ``(n,) int64``: the index of the first colliding pose along the approach (0 = pre-grasp,
             ``num_approach_samples - 1`` = grasp pose), -1 when free.
+        ignore_target
+            Contacts with the target are no collision (code 1 never reported): only support and clutter count,
+            e.g. for grasps whose contact with the target was judged elsewhere (a free-space label).
 
         Returns
         -------
@@ -266,10 +333,11 @@ class CollisionChecker:
         qpos = data.qpos
         a = self._free_adr
         left, right = self._jaw_adr
-        is_gripper = self._is_gripper
+        is_gripper, allowance = self._is_gripper, self._allowance
         margin = self.params.margin
         for i in range(n):
             qpos[left] = qpos[right] = openings[i] / 2.0  # jaw joint = half the pad separation
+            self._couplings.apply(qpos)
             qpos[a + 3:a + 7] = quats[i]
             for k in range(len(self._offsets)):
                 qpos[a:a + 3] = positions[i, k]
@@ -281,10 +349,21 @@ class CollisionChecker:
                 geom = contact.geom
                 grip0, grip1 = is_gripper[geom[:, 0]], is_gripper[geom[:, 1]]
                 # Exactly one gripper geom: explicit <pair> elements of the scene can still add object pairs.
-                hit = (contact.dist < margin) & (grip0 ^ grip1)
+                pair = grip0 ^ grip1
+                if not pair.any():
+                    continue
+                other = np.where(grip0, geom[:, 1], geom[:, 0])
+                mine = np.where(grip0, geom[:, 0], geom[:, 1])
+                # The touch rule: a jaw geom may press up to its allowance into the target (module docstring).
+                limit = margin - np.where(geom_code[other] == TARGET, allowance[mine], 0.0)
+                hit = pair & (contact.dist < limit)
                 if not hit.any():
                     continue
-                other = np.where(grip0[hit], geom[hit, 1], geom[hit, 0])
+                other = other[hit]
+                if ignore_target:
+                    other = other[geom_code[other] != TARGET]
+                    if not len(other):
+                        continue
                 codes[i] = geom_code[other].min()
                 steps[i] = k
                 break

@@ -107,6 +107,7 @@ __all__ = [
     "placed_object",
     "object_body_name",
     "build_scene_spec",
+    "free_space_spec",
     "object_bodies",
     "object_poses",
     "set_object_poses",
@@ -419,6 +420,32 @@ def build_scene_spec(
         )
     for index, obj in enumerate(objects):
         _add_object(spec, index, obj)
+    return spec
+
+
+def free_space_spec(obj: PlacedObject, physics: PhysicsOptions | None = None) -> mujoco.MjSpec:
+    """One object alone in free space: :func:`build_scene_spec` of ``[obj]`` with the ground and the support removed.
+
+    The object is the free body ``obj/0_<name>`` at ``obj.pose`` and nothing else can be touched: the world of the
+    free-space protocols (``acronym``, ``graspgen``; ``table`` with ``gravity_until_closed``) used by
+    :func:`graspgen.evaluate.evaluate_grasps` and :mod:`graspgen.sim.object_grasps`.
+
+    Parameters
+    ----------
+    obj : PlacedObject
+        The object; ``pose`` places its mesh frame in the world (the identity keeps world = mesh frame).
+    physics : PhysicsOptions, optional
+        Timestep, cones, impratio, integrator, gravity; default ``PhysicsOptions()``.
+
+    Returns
+    -------
+    mujoco.MjSpec
+        Compile with ``spec.compile()``; attach a gripper with :func:`graspgen.sim.grippers.attach_gripper`.
+    """
+    spec = build_scene_spec([obj], SupportParams(), physics)
+    for geom in list(spec.geoms):
+        if geom.name == GROUND_NAME or geom.name.startswith(SUPPORT_PREFIX):
+            spec.delete(geom)
     return spec
 
 

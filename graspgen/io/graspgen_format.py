@@ -1,0 +1,407 @@
+"""Write and read grasp sets in the dataset layout of NVIDIA's GraspGen (``NVlabs/GraspGen``, Murali et al., 2025).
+
+The layout is the one GraspGen's training data loader reads (``grasp_gen/dataset/dataset_utils.py``:
+``GraspJsonDatasetReader``, ``load_object_grasp_datapoint_objaverse``; the dataset format page of its docs) and the one
+NVIDIA's GraspDataGen writes for it (its GraspGen workflow page)::
+
+    <root>/
+        objects/<object>.obj                          the object dataset root: meshes in metres (scale 1)
+        grasp_data/<gripper>/<object>.grasps.json     one file per object (GraspGen's ``grasp_root_dir``)
+        grasp_data/<gripper>/map_uuid_to_path.json    {"<object>.obj": "<object>.grasps.json", ...}
+        splits/<gripper>/train.txt                    one object key per line (GraspGen's ``splits`` root)
+        splits/<gripper>/valid.txt
+
+An object's *key* is its mesh path relative to the object dataset root, ``<object>.obj``: the lines of the split
+files, the ``object.file`` of its JSON and the keys of ``map_uuid_to_path.json`` (GraspGen looks the JSON up by it and
+loads ``os.path.join(object_root_dir, key)``). Train with GraspGen's ``object_root_dir = <root>/objects``,
+``grasp_root_dir = <root>/grasp_data/<gripper>`` and ``root_dir = <root>/splits/<gripper>``. Each JSON file::
+
+    {
+      "object":  {"file": "<object>.obj", "scale": 1.0},
+      "gripper": {"name": "<gripper>", "width": max_width, "depth": tcp_offset,
+                  "transform_offset_from_asset_to_graspgen_convention": [[0, 0, 0], [0, 0, 0, 1]]},
+      "grasps":  {"transforms": [(4, 4) nested lists, ...], "object_in_gripper": [true, false, ...],
+                  "grasp_id": [int, ...], "protocol": "<protocol>"}
+    }
+
+GraspGen itself reads ``object.file``, ``object.scale``, ``grasps.transforms`` and ``grasps.object_in_gripper`` (JSON
+booleans: the loader indexes the poses with them as a boolean mask, so 0/1 integers would pick rows 0 and 1); the
+``gripper`` block is the one GraspDataGen writes (informational: GraspGen takes its gripper from its own config
+``config/grippers/<name>.yaml``); ``grasp_id`` and ``protocol`` are ours, for the way back to our tables. Floats are
+written with Python's shortest round-trip repr, so the JSON holds the poses exactly.
+
+Frames (stated precisely, and tested). ``grasps.transforms`` are the **gripper base-link frame** in the object's mesh
+frame (GraspGen: "4x4 homogeneous transformation matrix of the base link of gripper"), metres. GraspGen's gripper
+convention is z approach (positive z towards the object), x the fingers' closing direction, and its TCP sits ``depth``
+along +z from the base link (``get_transform_from_base_link_to_tool_tcp`` defaults to ``translation([0, 0, depth])``).
+Our hand base (:mod:`graspgen.sim.grippers`: the flange / hand frame) has exactly these axes, and our TCP (midway
+between the pads) is ``tcp_offset`` along its +z. So we write ``T_base = T_tcp @ Trans(0, 0, -tcp_offset)``
+(:func:`graspgen.io.acronym.hand_base_from_tcp`, the same frame ACRONYM files hold); a GraspGen gripper config for
+our gripper therefore has ``depth = tcp_offset`` and an identity ``transform_offset_from_asset_to_graspgen_convention``
+(the loader post-multiplies the poses by that offset), as the ``gripper`` block records. The meshes are written in
+metres in the same mesh frame as the poses, so ``object.scale`` is 1 (GraspGen scales the mesh by it, not the poses).
+
+Splits (:func:`split_of`): deterministic, by a hash of the object name, not by a random draw: an object goes to
+``valid`` when the first 8 bytes of ``sha256(name)``, read as a big-endian integer and divided by 2**64, are below
+``valid_fraction``, else to ``train``. The same object lands in the same split whatever else is in the dataset, for
+every gripper and run, so adding objects never moves one between splits; the valid share only approaches
+``valid_fraction`` for many objects (with few, one split may be empty; both files are always written). An explicit
+``{name: "train" | "valid"}`` assignment overrides the hash.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from graspgen.errors import InputError
+from graspgen.io.acronym import hand_base_from_tcp, obj_text, tcp_from_hand_base
+from graspgen.io.arrow import column_array
+from graspgen.io.atomic import write_text_atomic
+from graspgen.sim.grippers import load_gripper
+from graspgen.validation import check_number, check_transforms
+
+__all__ = [
+    "SPLITS",
+    "GraspGenObject",
+    "GraspGenEntry",
+    "split_of",
+    "write_graspgen",
+    "export_graspgen",
+    "read_graspgen",
+]
+
+SPLITS = ("train", "valid")
+"""The split files GraspGen reads (``<root_dir>/{train,valid}.txt``)."""
+
+_IDENTITY_OFFSET = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+"""GraspGen's ``transform_offset_from_asset_to_graspgen_convention`` (translation, quaternion xyzw) for a gripper whose
+base frame already has GraspGen's axes, as ours do."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class GraspGenObject:
+    """One object's grasp set for :func:`write_graspgen`."""
+
+    name: str
+    """Object name: the file stem of its mesh and JSON (no ``/``)."""
+    vertices: np.ndarray
+    """(v, 3) float64 mesh vertices, m, mesh frame."""
+    faces: np.ndarray
+    """(f, 3) int faces, 0-based."""
+    T_tcp: np.ndarray
+    """(n, 4, 4) float64 TCP poses in the mesh frame (our convention: z approach, x closing, origin between pads)."""
+    success: np.ndarray
+    """(n,) bool labels (written as ``object_in_gripper``)."""
+    gripper: str
+    """Our gripper name or gripper file (:func:`graspgen.sim.grippers.load_gripper`)."""
+    grasp_ids: np.ndarray | None = None
+    """(n,) int grasp ids (default 0..n-1)."""
+    protocol: str = ""
+    """The protocol that labelled the grasps (e.g. ``acronym``), recorded in the JSON."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class GraspGenEntry:
+    """One object's JSON file read back by :func:`read_graspgen`. Arrays are read-only."""
+
+    key: str
+    """``object.file``: the mesh path relative to the object dataset root (the split files' entry)."""
+    name: str
+    """The JSON file's stem before ``.grasps.json``."""
+    gripper: str
+    """The ``grasp_data/<gripper>`` folder it was found in."""
+    split: str | None
+    """``train`` or ``valid``: the split file listing ``key`` (None when neither does)."""
+    mesh_path: Path
+    """``<root>/objects/<key>``."""
+    scale: float
+    """``object.scale``."""
+    transforms: np.ndarray
+    """(n, 4, 4) float64 gripper base-link poses in the (scaled) mesh frame, m (GraspGen's ``grasps.transforms``)."""
+    success: np.ndarray
+    """(n,) bool ``grasps.object_in_gripper``."""
+    depth: float | None
+    """``gripper.depth`` (m): base link -> TCP along +z; None when the file has no ``gripper`` block."""
+    grasp_ids: np.ndarray | None
+    """(n,) int64 ``grasps.grasp_id`` or None."""
+    protocol: str
+    """``grasps.protocol`` ('' when absent)."""
+    path: Path
+    """The JSON file."""
+
+    def __len__(self) -> int:
+        return len(self.transforms)
+
+    def tcp_poses(self, depth: float | None = None) -> np.ndarray:
+        """(n, 4, 4) TCP poses in the mesh frame: ``transforms @ Trans(0, 0, depth)`` (default the file's
+        ``gripper.depth``, else our gripper of that name's ``tcp_offset``)."""
+        if depth is None:
+            depth = self.depth if self.depth is not None else load_gripper(self.gripper).tcp_offset
+        return tcp_from_hand_base(self.transforms, depth) if len(self) else np.zeros((0, 4, 4))
+
+
+def split_of(name: str, valid_fraction: float) -> str:
+    """``valid`` or ``train`` for an object name, by a hash (see the module docstring).
+
+    Parameters
+    ----------
+    name : str
+        Object name.
+    valid_fraction : float
+        In [0, 1]: the long-run share of ``valid`` objects (0: all train, 1: all valid).
+
+    Returns
+    -------
+    str
+    """
+    fraction = check_number("valid_fraction", valid_fraction, low=0.0, high=1.0)
+    u = int.from_bytes(hashlib.sha256(str(name).encode("utf-8")).digest()[:8], "big") / 2.0**64
+    return "valid" if u < fraction else "train"
+
+
+def _check_name(name: Any, where: str) -> str:
+    if not isinstance(name, str) or not name or "/" in name or "\\" in name or name in (".", ".."):
+        raise InputError(f"{where}: object name must be a non-empty file name (no '/'), got {name!r}")
+    return name
+
+
+def _grasp_json(obj: GraspGenObject, key: str) -> tuple[str, str]:
+    """(JSON text, our gripper name) of one object."""
+    spec = load_gripper(obj.gripper)
+    T_tcp = np.zeros((0, 4, 4)) if len(np.asarray(obj.T_tcp)) == 0 else check_transforms("T_tcp", obj.T_tcp)
+    n = len(T_tcp)
+    success = np.asarray(obj.success).reshape(-1)
+    if len(success) != n:
+        raise ValueError(f"{obj.name}: success: expected {n} labels (one per pose), got {len(success)}")
+    ids = np.arange(n) if obj.grasp_ids is None else np.asarray(obj.grasp_ids).reshape(-1)
+    if len(ids) != n:
+        raise ValueError(f"{obj.name}: grasp_ids: expected {n} ids (one per pose), got {len(ids)}")
+    T_base = hand_base_from_tcp(T_tcp, spec.tcp_offset) if n else T_tcp
+    data = {
+        "object": {"file": key, "scale": 1.0},
+        "gripper": {"name": spec.name, "width": float(spec.max_width), "depth": float(spec.tcp_offset),
+                    "transform_offset_from_asset_to_graspgen_convention": _IDENTITY_OFFSET},
+        "grasps": {"transforms": T_base.tolist(), "object_in_gripper": [bool(s) for s in success],
+                   "grasp_id": [int(i) for i in ids], "protocol": str(obj.protocol)},
+    }
+    return json.dumps(data, separators=(",", ":")) + "\n", spec.name
+
+
+def write_graspgen(
+    root: str | Path,
+    objects: Sequence[GraspGenObject],
+    *,
+    valid_fraction: float = 0.2,
+    splits: Mapping[str, str] | None = None,
+) -> list[str]:
+    """Write grasp sets in GraspGen's dataset layout under ``root`` (see the module docstring).
+
+    Parameters
+    ----------
+    root : str or Path
+        Output folder (made when missing; files in it are overwritten, others left alone).
+    objects : sequence of GraspGenObject
+        One entry per (object, gripper); an object with grasps of several grippers has one entry per gripper (its
+        mesh is written once; the entries must share it).
+    valid_fraction : float
+        Share of objects for ``valid`` (:func:`split_of`), in [0, 1].
+    splits : mapping, optional
+        ``{name: "train" | "valid"}`` overriding the hash for the names it lists.
+
+    Returns
+    -------
+    list of str
+        The written files relative to ``root``, sorted.
+
+    Raises
+    ------
+    graspgen.errors.InputError
+        A bad object name, or two entries of one object and gripper.
+    ValueError
+        Poses, labels or ids of the wrong shape; a split other than train / valid.
+    graspgen.errors.SettingsError
+        An unknown gripper.
+    """
+    root = Path(root)
+    check_number("valid_fraction", valid_fraction, low=0.0, high=1.0)
+    chosen = dict(splits or {})
+    for name, split in chosen.items():
+        if split not in SPLITS:
+            raise ValueError(f"splits[{name!r}]: must be one of {', '.join(SPLITS)}, got {split!r}")
+    files: dict[str, str] = {}
+    listed: dict[str, dict[str, list[str]]] = {}
+    for obj in objects:
+        name = _check_name(obj.name, "objects")
+        key = f"{name}.obj"
+        mesh = obj_text(obj.vertices, obj.faces)
+        if files.setdefault(f"objects/{key}", mesh) != mesh:
+            raise InputError(f"objects: {name!r} is given twice with different meshes")
+        text, gripper = _grasp_json(obj, key)
+        rel = f"grasp_data/{gripper}/{name}.grasps.json"
+        if rel in files:
+            raise InputError(f"objects: {name!r} is given twice for gripper {gripper!r}")
+        files[rel] = text
+        split = chosen.get(name) or split_of(name, valid_fraction)
+        listed.setdefault(gripper, {s: [] for s in SPLITS})[split].append(key)
+    for gripper, by_split in listed.items():
+        keys = sorted(k for keys in by_split.values() for k in keys)
+        mapping = {k: f"{k[: -len('.obj')]}.grasps.json" for k in keys}
+        files[f"grasp_data/{gripper}/map_uuid_to_path.json"] = json.dumps(mapping, indent=2, sort_keys=True) + "\n"
+        for split, keys in by_split.items():
+            files[f"splits/{gripper}/{split}.txt"] = "".join(f"{k}\n" for k in sorted(keys))
+    for rel in sorted(files):
+        write_text_atomic(root / rel, files[rel])
+    return sorted(files)
+
+
+def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
+    """The object grasp sets of a published dataset folder in GraspGen's layout, under ``root/graspgen/``.
+
+    Reads ``root/object_grasps.parquet`` (columns ``object_name``, ``grasp_id``, ``gripper``, ``protocol``,
+    ``pose_object`` (TCP, object mesh frame), ``success``; rows by object, then ``grasp_id``) and each object's mesh
+    from ``root/objects/<object>.h5`` (``mesh/vertices``, ``mesh/faces``: the frame of ``pose_object``), and calls
+    :func:`write_graspgen` with one entry per (object, gripper), grasps in table order.
+
+    Parameters
+    ----------
+    root : Path
+        The dataset folder.
+    valid_fraction : float
+        See :func:`split_of`.
+
+    Returns
+    -------
+    list of str
+        The written files, relative to ``root`` (``graspgen/...``), sorted.
+
+    Raises
+    ------
+    graspgen.errors.InputError
+        The table or an object record is missing, or lacks a column / entry; an object's rows of one gripper
+        name several protocols. The message names the file.
+    """
+    path = root / "object_grasps.parquet"
+    if not path.is_file():
+        raise InputError(f"{path}: object grasp table not found")
+    wanted = ["object_name", "grasp_id", "gripper", "protocol", "pose_object", "success"]
+    missing = [c for c in wanted if c not in pq.read_schema(path).names]
+    if missing:
+        raise InputError(f"{path}: not an object grasp table: no column(s) {', '.join(missing)}")
+    table = pq.read_table(path, columns=wanted)
+    names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
+    grippers = np.asarray(table.column("gripper").to_pylist(), dtype=object)
+    objects, meshes = [], {}
+    for name, gripper in sorted({(str(n), str(g)) for n, g in zip(names, grippers)}):
+        _check_name(name, str(path))
+        part = table.take(pa.array(np.flatnonzero((names == name) & (grippers == gripper))))
+        protocols = sorted(set(part.column("protocol").to_pylist()))
+        if len(protocols) != 1:
+            raise InputError(f"{path}: object {name!r} ({gripper}) has grasps labelled by several protocols: "
+                             f"{protocols}")
+        if name not in meshes:
+            meshes[name] = _read_mesh(root / "objects" / f"{name}.h5", name)
+        objects.append(GraspGenObject(
+            name=name, vertices=meshes[name][0], faces=meshes[name][1],
+            T_tcp=column_array(part, "pose_object", (4, 4)),
+            success=part.column("success").to_numpy(zero_copy_only=False).astype(bool),
+            gripper=gripper, grasp_ids=part.column("grasp_id").to_numpy(), protocol=str(protocols[0]),
+        ))
+    return [f"graspgen/{rel}" for rel in write_graspgen(root / "graspgen", objects, valid_fraction=valid_fraction)]
+
+
+def _read_mesh(path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
+    if not path.is_file():
+        raise InputError(f"{path}: object record not found (needed for the mesh of {name!r})")
+    try:
+        with h5py.File(path, "r") as f:
+            return np.asarray(f["mesh/vertices"][()], dtype=np.float64), np.asarray(f["mesh/faces"][()])
+    except (OSError, KeyError) as exc:
+        raise InputError(f"{path}: not an object record ({exc})") from None
+
+
+def read_graspgen(root: str | Path) -> list[GraspGenEntry]:
+    """Read a GraspGen-layout folder (the module docstring's layout): every ``grasp_data/<gripper>/*.json`` but
+    ``map_uuid_to_path.json``, with its split from ``splits/<gripper>/{train,valid}.txt``.
+
+    Parameters
+    ----------
+    root : str or Path
+        The folder holding ``grasp_data/``, ``splits/`` and ``objects/``.
+
+    Returns
+    -------
+    list of GraspGenEntry
+        Sorted by gripper, then file name.
+
+    Raises
+    ------
+    graspgen.errors.InputError
+        No ``grasp_data`` folder; a JSON file that is not valid JSON or lacks ``object.file`` /
+        ``grasps.transforms`` / ``grasps.object_in_gripper``, or has poses that are not (n, 4, 4) rigid transforms or
+        labels that are not one boolean per pose. The message names the file.
+    """
+    root = Path(root)
+    data_dir = root / "grasp_data"
+    if not data_dir.is_dir():
+        raise InputError(f"{data_dir}: no grasp_data folder, so not a GraspGen dataset")
+    entries = []
+    for folder in sorted(p for p in data_dir.iterdir() if p.is_dir()):
+        split_of_key: dict[str, str] = {}
+        for split in SPLITS:
+            split_file = root / "splits" / folder.name / f"{split}.txt"
+            if split_file.is_file():
+                for line in split_file.read_text(encoding="utf-8").splitlines():
+                    if line.strip():
+                        split_of_key.setdefault(line.strip(), split)
+        for path in sorted(folder.glob("*.json")):
+            if path.name == "map_uuid_to_path.json":
+                continue
+            entries.append(_read_entry(path, root, folder.name, split_of_key))
+    return entries
+
+
+def _read_entry(path: Path, root: Path, gripper: str, split_of_key: Mapping[str, str]) -> GraspGenEntry:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        key, scale = str(data["object"]["file"]), float(data["object"].get("scale", 1.0))
+        grasps = data["grasps"]
+        T = np.asarray(grasps["transforms"], dtype=np.float64)
+        success = np.asarray(grasps["object_in_gripper"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path}: not a GraspGen grasp file ({type(exc).__name__}: {exc})") from None
+    if len(T) == 0:
+        T = np.zeros((0, 4, 4))
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise InputError(f"{path}: grasps.transforms must be (n, 4, 4) transforms, got shape {T.shape}")
+    if len(T):
+        try:
+            check_transforms("grasps.transforms", T)
+        except ValueError as exc:
+            raise InputError(f"{path}: {exc}") from None
+    if success.shape != (len(T),) or (len(T) and success.dtype != np.bool_):
+        raise InputError(f"{path}: grasps.object_in_gripper must be {len(T)} booleans (one per transform), got "
+                         f"shape {success.shape} of {success.dtype}")
+    ids = np.asarray(grasps["grasp_id"], dtype=np.int64) if "grasp_id" in grasps else None
+    if ids is not None and ids.shape != (len(T),):
+        raise InputError(f"{path}: grasps.grasp_id must be {len(T)} ids, got shape {ids.shape}")
+    grip = data.get("gripper") or {}
+    success = success.astype(bool)
+    for a in (T, success, ids):
+        if a is not None:
+            a.setflags(write=False)
+    name = path.name[: -len(".grasps.json")] if path.name.endswith(".grasps.json") else path.stem
+    return GraspGenEntry(
+        key=key, name=name, gripper=gripper, split=split_of_key.get(key), mesh_path=root / "objects" / key,
+        scale=scale, transforms=T, success=success, depth=float(grip["depth"]) if "depth" in grip else None,
+        grasp_ids=ids, protocol=str(grasps.get("protocol", "")), path=path,
+    )

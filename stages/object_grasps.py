@@ -1,0 +1,61 @@
+"""Stage ``object_grasps``: an object-centric grasp set per object, ACRONYM / GraspGen style.
+
+One task per object (input ``objects``); the work is :func:`graspgen.sim.object_grasps.label_object_grasps` (see
+there for the candidates, the protocol and the table's columns): grasps over the whole sphere around the object
+alone in free space, rolled out until ``target_positives`` successes and ``target_negatives`` failures are kept or
+``max_candidates`` were tried. One Parquet shard per object; an object that falls short of a target is named in the
+task's warnings.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from graspgen.io.files import write_parquet
+from graspgen.io.objects import read_object
+from graspgen.sim.grippers import gripper_files
+from graspgen.sim.object_grasps import ObjectGraspsParams, label_object_grasps
+from pipeline.stage import RunContext, Task, Upstream
+from stages.base import GraspStage
+
+
+class ObjectGraspsStage(GraspStage):
+    name = "object_grasps"
+    inputs = ("objects",)
+    version = 1
+    ext = "parquet"
+
+    def tasks(self, params: ObjectGraspsParams, upstream: Upstream) -> list[Task]:
+        gripper = gripper_files(params.gripper)  # a gripper file's bytes (and its meshes') enter the keys
+        return [Task(id=name, needs={"objects": [name]}, inputs=gripper) for name in upstream.ids("objects")]
+
+    def run(
+        self,
+        task: Task,
+        params: ObjectGraspsParams,
+        upstream: Upstream,
+        rng: np.random.Generator,
+        out: Path,
+        ctx: RunContext,
+    ) -> dict[str, Any]:
+        record = read_object(upstream.path("objects", task.id))
+        table, meta = label_object_grasps(record, params, rng)
+        write_parquet(out, table)
+        warning = shortfall(task.id, meta)
+        return {**meta, "warnings": [warning]} if warning else meta
+
+
+def shortfall(name: str, meta: dict[str, Any]) -> str | None:
+    """The warning for an object whose targets were not reached (None when they were), from the meta of
+    :func:`graspgen.sim.object_grasps.label_object_grasps`."""
+    if meta["reached"]:
+        return None
+    counts = (f"object {name!r}: {meta['positives']} of {meta['target_positives']} positives, "
+              f"{meta['negatives']} of {meta['target_negatives']} negatives")
+    if meta["stopped"] == "no_candidates":
+        return (f"{counts} after {meta['tried']} candidates: the sampler found no more antipodal pairs the gripper "
+                "opens around (object_grasps.sampler, object_grasps.gripper)")
+    return f"{counts} after {meta['tried']} candidates (object_grasps.max_candidates)"
