@@ -265,3 +265,16 @@ def test_collisions_fill_at_most_their_share_of_the_negatives(box):
     assert meta["collision_negatives"] == collisions <= 2
     np.testing.assert_array_equal(column_array(kept, "pose_object", (16,)),
                                   column_array(every, "pose_object", (16,))[expected])
+
+
+def test_once_the_positives_are_in_the_batches_are_mostly_near_misses(box):
+    """After ``target_positives`` successes only failures are kept: the batches turn to near misses (0.8 of 16 = 13
+    each), where the failures are; with the same share as before (0.25 = 4 of 16) nothing changes."""
+    kw = {"target_positives": 2, "max_candidates": 160}
+    meta = label_object_grasps(box, params(**kw), np.random.default_rng(5))[1]
+    same = label_object_grasps(box, params(**kw, near_miss_fraction_when_positives_met=0.25),
+                               np.random.default_rng(5))[1]
+    assert same["candidates"] == {"antipodal": 120, "near_miss": 40}  # 10 batches of 12 + 4
+    assert meta["positives"] == 2 and meta["candidates"]["near_miss"] >= 4 * 2 + 13 * 8  # late from batch 3 on
+    with pytest.raises(SettingsError, match="near_miss_fraction_when_positives_met"):
+        params(near_miss_fraction_when_positives_met=1.0)

@@ -5,7 +5,8 @@ object frame) and labels grasps on it until it has ``target_positives`` successe
 or has tried ``max_candidates``:
 
 1. **Candidates**, in batches of ``batch_size``. ``round(near_miss_fraction * batch_size)`` of each batch are near
-   misses, the rest antipodal candidates.
+   misses, the rest antipodal candidates; once ``target_positives`` successes are kept, only failures can still be
+   kept and ``near_miss_fraction_when_positives_met`` (0.8) of each batch are near misses, where the failures are.
 
    - ``antipodal``: :func:`graspgen.geometry.antipodal.sample_antipodal` on the record's mesh in its own frame with
      the approach filter off (``approach="any"``): approach axes over the whole sphere, from below as much as from
@@ -201,6 +202,12 @@ class ObjectGraspsParams:
     """Candidates sampled per batch (antipodal plus near misses, in a shuffled order)."""
     near_miss_fraction: float = 0.3
     """Share of each batch that are near misses (``round(fraction * batch_size)``), in [0, 1)."""
+    near_miss_fraction_when_positives_met: float = 0.8
+    """Share of each batch that are near misses once ``target_positives`` successes are kept (and some antipodal
+    candidate has held), in [0, 1). From then on only failures are kept, and they are where the near misses are:
+    on the calibration mug 12 % of near misses fail without a collision against 0.2 % of antipodal candidates, so a
+    batch of mostly near misses finds the negatives ~10x sooner instead of rolling out successes that are thrown
+    away (each a full closing and shake)."""
     near_miss_overhang: float | None = None
     """Shifted near misses: how far (m) beyond the edge of the pad face the parent's contact point ends up, along
     the shift (the shift is the distance from the contact to the pad's edge in a random in-plane direction plus
@@ -245,6 +252,13 @@ class ObjectGraspsParams:
             object.__setattr__(self, key, check_int(key, getattr(self, key), low=1))
         object.__setattr__(self, "near_miss_fraction", check_number(
             "near_miss_fraction", self.near_miss_fraction, low=0.0, high=1.0, high_open=True))
+        object.__setattr__(self, "near_miss_fraction_when_positives_met", check_number(
+            "near_miss_fraction_when_positives_met", self.near_miss_fraction_when_positives_met, low=0.0, high=1.0,
+            high_open=True))
+        check("near_miss_fraction_when_positives_met",
+              round(self.near_miss_fraction_when_positives_met * self.batch_size) < self.batch_size,
+              f"leave at least one antipodal candidate per batch of {self.batch_size}",
+              self.near_miss_fraction_when_positives_met)
         check("near_miss_fraction", self.near_misses_per_batch < self.batch_size,
               f"leave at least one antipodal candidate per batch of {self.batch_size}", self.near_miss_fraction)
         if self.near_miss_overhang is not None:
@@ -483,8 +497,7 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
     mesh = trimesh.Trimesh(np.asarray(record.vertices, dtype=np.float64), np.asarray(record.faces), process=False)
     pool = _Pool(mesh, gripper, params.sampler, rng)
 
-    n_near = params.near_misses_per_batch
-    n_anti = params.batch_size - n_near
+    n_near_late = round(params.near_miss_fraction_when_positives_met * params.batch_size)
     counts = np.zeros(len(OUTCOME_NAMES), dtype=np.int64)
     by_kind = {k: np.zeros(len(OUTCOME_NAMES), dtype=np.int64) for k in CANDIDATES}  # outcome counts per kind
     kept: list[tuple[str, np.ndarray, float, RolloutResult]] = []
@@ -499,7 +512,10 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
         return positives >= params.target_positives and negatives >= params.target_negatives
 
     while tried < params.max_candidates and not done():
-        pose, width, depth = pool.take(n_anti)
+        # Once the positives are in (and near misses of held grasps can be made), look for negatives where they are.
+        late = positives >= params.target_positives and bool(good_pose)
+        n_near = n_near_late if late else params.near_misses_per_batch
+        pose, width, depth = pool.take(params.batch_size - n_near)
         if len(width) == 0:
             stopped = "no_candidates"
             break
