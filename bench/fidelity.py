@@ -4,8 +4,9 @@ For every ACRONYM file under the calibration folder (the example mug, and a bott
 Franka Panda grasps each, ``grasps/qualities/flex/object_in_gripper``), the grasps are labelled by
 :func:`graspgen.evaluate.evaluate_grasps` with the Panda (object mass, friction and scale from the file) under
 
-* ``table``: the pipeline's protocol in free space (pre-grasp 5 cm back, approach, close, lift, hold; no shake):
-  what ``gen evaluate`` did before protocols were named, the "before" numbers;
+* ``table``: the pipeline's protocol in free space (pre-grasp 5 cm back, approach, close, lift, hold, then the
+  shake, on by default since issue 11: ``LiftParams.shake``): what ``gen evaluate`` did before protocols were named
+  (then without the shake), the "before" numbers;
 * ``acronym``: ACRONYM's own test (:class:`graspgen.sim.lift.AcronymParams`): the "after" numbers;
 * ``graspgen``: GraspDataGen's tug test (:class:`graspgen.sim.lift.GraspGenParams`), on request
   (``--protocols table,acronym,graspgen``).
@@ -411,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
     for protocol in protocols:
         lift = LiftParams().with_protocol(protocol)
         report["protocols"][protocol] = run_protocol(cases, lift, args, protocol)
-        kind = {"table": "free space, no shake", "acronym": "ACRONYM", "graspgen": "GraspDataGen"}[protocol]
+        kind = {"table": "free space, shake on", "acronym": "ACRONYM", "graspgen": "GraspDataGen"}[protocol]
         print_protocol(f"{protocol} protocol ({kind})",
                        report["protocols"][protocol], bool(args.robustness))
     if args.speed:

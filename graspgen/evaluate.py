@@ -12,13 +12,13 @@ Protocols (``LiftParams.protocol``, or the ``protocol`` argument; :mod:`graspgen
   axis and about its closing axis, and the label is whether the object is still between the fingers. Widths are
   not used (the jaws open fully; ``width_source`` is ``protocol``). The four motion columns are ACRONYM's
   ``object_motion_during_{closing,shaking}_{linear,angular}``. The right protocol for comparing with ACRONYM labels.
-* ``table`` (default; the pipeline's grasp-and-lift: pre-grasp 5 cm back, approach, close, lift, hold), in one of
-  two worlds:
+* ``table`` (default; the pipeline's grasp-and-lift: pre-grasp 5 cm back, approach, close, lift, hold, shake (on by
+  default, ACRONYM's numbers: ``LiftParams.shake``)), in one of two worlds:
 
   - **free space** (default). The object is a free body at the world origin (mesh frame = world frame), at rest,
     with nothing else in the world: no ground, no table. Gravity is off during placement, approach and closing
     (``LiftParams.gravity_until_closed``), so the object floats where it is until the fingers hold it, then on for
-    the lift, hold and optional shake. A grasp from below is as good as one from above.
+    the lift, hold and shake. A grasp from below is as good as one from above.
   - **support plane** (``free_space=False``): the object rests on a table (``SupportParams``, top at z = 0) in its
     most probable stable pose, settled in MuJoCo, with gravity throughout; the grasps are moved with it
     (``T_world = T_world_object @ T_object``). Grasps from below the table top are collisions with the ground (0).

@@ -433,7 +433,7 @@ def evaluate(
     """Label external grasps of one object with our simulator (outcome 0-5 per grasp, in input order).
 
     Protocols (README, Protocols): acronym (ACRONYM files' default) places the open hand at the grasp, closes and
-    shakes in free space; table approaches, closes and lifts, in free space (gravity off until the fingers have
+    shakes in free space; table approaches, closes, lifts and shakes, in free space (gravity off until the fingers have
     closed) or, with --support, on a table.
 
     ACRONYM: hand-base poses + the file gripper's TCP offset; object/scale, mass (or density), friction are used.

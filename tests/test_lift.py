@@ -83,7 +83,11 @@ def test_box_grasped_across_its_faces_from_above_is_lifted():
     assert res.rel_translation < 1e-3 and res.rel_rotation < 1e-2
     assert res.closed_width == pytest.approx(2 * HALF, abs=1e-3)
     assert res.sim_time == pytest.approx(res.steps * 0.002)
-    assert res.steps < 700  # fast protocol: ~0.15 s approach, ~0.1 s closing, 0.5 s lift, 0.2 s hold
+    # Steps at 2 ms, the default shake included: approach 5 cm at 0.5 m/s, 10 m/s^2 (0.05 s ramps, 0.05 s cruise)
+    # = 75; lift 20 cm at 0.5 m/s, 5 m/s^2 (0.1 s ramps, 0.3 s cruise) = 250; hold 0.2 s = 100; shake 2 axes x
+    # 2 cycles / 4 Hz = 2 x 250: 925 in all, plus closing: the 2F-85 closes 7 -> 5 cm at 0.15 m/s in >= 67 steps,
+    # and the jaws are seen to stop within a few check intervals (10 steps) after that.
+    assert 925 + 67 <= res.steps <= 925 + 67 + 5 * 10
 
 
 def test_frictionless_box_slips_out():
@@ -97,7 +101,8 @@ def test_frictionless_box_slips_out():
 def test_default_params_hold_1kg_at_friction_05_and_let_3kg_at_friction_03_slip():
     assert _rollout(_world([{"mass": 1.0, "friction": 0.5}])).code == L.Outcome.SUCCESS
     assert _rollout(_world([{"mass": 3.0, "friction": 0.3}])).code == L.Outcome.SLIPPED_DURING_LIFTING
-    # It is the grip force that decides: the 2F-85 model's own 100 N force limit holds the 3 kg box.
+    # It is the grip force that decides: the 2F-85 model's own 100 N force limit holds the 3 kg box, through the
+    # default shake too (Coulomb: 3 kg x (9.81 + 9.9 m/s^2 at the shake's peak) / (2 x 0.3) = 98.6 N).
     held = _rollout(_world([{"mass": 3.0, "friction": 0.3}]), params=L.LiftParams(grip_force=None))
     assert held.code == L.Outcome.SUCCESS
 
@@ -185,18 +190,35 @@ def test_free_space_mode_lifts_a_floating_box_grasped_from_the_side():
 
 def test_shake_keeps_a_firm_grasp_and_costs_steps():
     model = _world()
-    plain = _rollout(model)
-    shaken = _rollout(model, params=L.LiftParams(shake=True))
+    # shake=False explicitly: the lift alone, to compare with the default (shaken) rollout.
+    plain = _rollout(model, params=L.LiftParams(shake=False))
+    shaken = _rollout(model)  # the shake is on by default
+    assert L.LiftParams().shake
     assert shaken.code == L.Outcome.SUCCESS and shaken.rel_translation < 2e-3
     n_shake = 2 * round(L.LiftParams().shake_cycles / L.LiftParams().shake_frequency / 0.002)
+    assert n_shake == 500  # 2 axes x 2 cycles / 4 Hz = 1 s at 2 ms
     assert shaken.steps == plain.steps + n_shake
-    # A weak grip (18 N; the lift needs 14.8 N) survives the plain lift but loses the box in a hard vertical shake
-    # (peak ~1.5 g: it would need ~25 N).
-    weak = L.LiftParams(grip_force=18.0)
+    # A weak grip (18 N; the lift needs 14.8 N) survives the plain lift (shake=False explicitly: that is what is
+    # tested here) but loses the box in a hard vertical shake (0.03 m at 4 Hz: peak ~2 g, measured 19.9 m/s^2 on the
+    # sampled wave; it would need 1 kg x (9.81 + 19.9) / (2 x 0.5) = 30 N).
+    weak = L.LiftParams(grip_force=18.0, shake=False)
     assert _rollout(model, params=weak).code == L.Outcome.SUCCESS
     res = _rollout(model, params=dataclasses.replace(weak, shake=True, shake_amplitude=0.03,
                                                      shake_frequency=4.0))
     assert (res.code, res.decided_in) == (4, "shaking")
+
+
+def test_default_shake_loads_the_grip_with_about_1g_on_top_of_gravity():
+    # The default shake peaks at 1.05 x 0.015 m x (2 pi 4 Hz)^2 = 9.9 m/s^2, so by Coulomb the 1 kg box at friction
+    # 0.5 needs 1 kg x (9.81 + 9.9) / (2 x 0.5) = 19.7 N per jaw to ride it without sliding (the lift alone: 14.8 N).
+    model = _world()
+    below, above = 17.0, 22.0  # 0.86x and 1.12x that grip
+    plain = _rollout(model, params=L.LiftParams(grip_force=below, shake=False))  # the lift alone (shake off)
+    assert plain.code == L.Outcome.SUCCESS and plain.rel_translation < 2e-4
+    slid = _rollout(model, params=L.LiftParams(grip_force=below))
+    assert slid.motion_shaking_linear > 1e-3  # slides in the hand during the shake (less than slip_tolerance)
+    held = _rollout(model, params=L.LiftParams(grip_force=above))
+    assert held.code == L.Outcome.SUCCESS and held.motion_shaking_linear < 2e-4
 
 
 # ------------------------------------------------------------------------------------------------- contacts

@@ -2,24 +2,25 @@
 
 :class:`LiftSimulator` takes a compiled scene (ground / support geoms, free object bodies, a floating gripper attached
 with :func:`graspgen.sim.grippers.attach_gripper`) and rolls out grasps in it: place the gripper at the pre-grasp pose,
-approach, close under a force limit, lift, hold, optionally shake, and label what happened with one of six outcome
-codes (:class:`Outcome`). The rules are written out in :class:`LiftSimulator`'s docstring.
+approach, close under a force limit, lift, hold, shake (on by default; ``LiftParams.shake``), and label what happened
+with one of six outcome codes (:class:`Outcome`). The rules are written out in :class:`LiftSimulator`'s docstring.
 
 Frames: a grasp is the 4x4 world pose of the gripper's TCP frame (origin midway between the pads, z = approach
 direction palm -> object, x = closing direction; the *left* jaw sits on -x, the *right* on +x) and a pad separation
 ``width`` in metres (:mod:`graspgen.sim.grippers`).
 
-Speed (``bench/bench_rollouts.py``; 2F-85 on the bundled box / can, one core): a successful rollout is ~490 steps
-(0.98 s simulated: 0.15 s approach, ~0.12 s closing, 0.5 s lift, 0.2 s hold); failures stop earlier. Most of a
-rollout is waiting, so the protocol keeps simulated time short and stops as soon as a rule decides, and it keeps
-Python out of the step loop: the mocap target is written once per step only while the gripper moves (a row copy,
-~1 us against ~15 us per step), closing and holding run as ``mj_step(model, data, nstep=check_interval)``, and the
-rules are checked once per ``check_interval`` steps on cached ids and views (squared distances and cosines, no
-allocation beyond a few small temporaries). Measured: 130-190 rollouts/s, within 1.1x of the bare ``mj_step`` cost of
-the same steps.
+Speed (``bench/bench_rollouts.py``; 2F-85 on the bundled box / can, one core): a successful rollout is ~990 steps
+(1.98 s simulated: 0.15 s approach, ~0.12 s closing, 0.5 s lift, 0.2 s hold, 2 x 0.5 s shake; ~490 without the
+shake); failures stop earlier. Most of a rollout is waiting, so the protocol keeps simulated time short and stops as
+soon as a rule decides, and it keeps Python out of the step loop: the mocap target is written once per step only
+while the gripper moves (a row copy, ~1 us against ~15 us per step), closing and holding run as
+``mj_step(model, data, nstep=check_interval)``, and the rules are checked once per ``check_interval`` steps on cached
+ids and views (squared distances and cosines, no allocation beyond a few small temporaries). Measured: 90-130
+rollouts/s with the default shake (160-240 without), within 1.12x of the bare ``mj_step`` cost of the same steps.
 
 Protocols (:data:`PROTOCOLS`, ``LiftParams.protocol``): ``table`` is the pipeline's grasp-and-lift above (the default;
-its results are what they were before protocols were named); ``acronym`` is ACRONYM's free-space test: the hand is
+with ``shake=False`` its results are what they were before protocols were named, and before the shake was on by
+default); ``acronym`` is ACRONYM's free-space test: the hand is
 placed at the grasp with open fingers and closes on the floating object, then gravity comes on along the approach
 axis, the hand shakes along and about its own axes, and the label is whether the object is still between the fingers
 (:class:`AcronymParams` cites where each number comes from). On the calibration mug (``bench/fidelity.py``) a held
@@ -318,9 +319,17 @@ class LiftParams:
 
     The defaults are tuned on the Robotiq 2F-85 (``tests/test_lift.py``): a 1 kg box at friction 0.5 must be lifted
     and held, a 3 kg box at friction 0.3 must slip. Coulomb says the first needs a grip of 1 kg x (9.81 + 5 m/s^2 of
-    lift acceleration) / (2 x 0.5) = 14.8 N per jaw and the second 49 N just to hold still; measured with these
-    defaults, the 1 kg box is held from 14 N on and the 3 kg box slips up to 60 N (held from 65 N). ``grip_force`` =
-    30 N sits about in the geometric middle (a factor ~2 from either edge; the 2F-85 grips with 20-235 N).
+    lift acceleration) / (2 x 0.5) = 14.8 N per jaw for the lift and 1 kg x (9.81 + 9.9 m/s^2) / (2 x 0.5) = 19.7 N
+    for the default shake's ~1 g peak, and the second 49 N just to hold still and 98.6 N through the shake. Measured
+    without the shake, the 1 kg box is held from 14 N on and the 3 kg box slips up to 60 N (held from 65 N); with the
+    default shake the 1 kg box slides 20 / 6 / 1 mm in the hand at 14 / 16 / 18 N (held: less than
+    ``slip_tolerance``) and 0.1 mm from 20 N on, and the 3 kg box is shaken out up to 70 N (held from 80 N, still
+    sliding 6 mm there, 0.4 mm at 100 N). ``grip_force`` = 30 N sits between the edges (1.5x the 1 kg box's
+    Coulomb grip through the shake, 0.3x the 3 kg box's; the 2F-85 grips with 20-235 N).
+
+    The ``table`` protocol disturbs the grasp after the hold by default (``shake``): ACRONYM's shake (Eppner,
+    Mousavian, Fox, ICRA 2021, arXiv:2011.09584), with the numbers and the argument of :class:`AcronymParams`
+    (``shake_*`` below say which).
 
     ``protocol`` names the phase sequence (:data:`PROTOCOLS`): ``table`` (default; every field below but
     ``acronym`` and ``graspgen``), ``acronym`` (its own settings in ``acronym``) or ``graspgen`` (its own settings
@@ -330,10 +339,10 @@ class LiftParams:
 
     # -- protocol ---------------------------------------------------------------------------------------------------
     protocol: Literal["table", "acronym", "graspgen"] = "table"
-    """``table``: place at the pre-grasp pose, approach, close, lift, hold (optionally shake), on a support or in
-    free space (the pipeline's protocol). ``acronym``: ACRONYM's free-space protocol, placed at the grasp with the
-    jaws open, close, shake along and about the hand's axes, label = object still between the fingers
-    (:class:`AcronymParams`)."""
+    """``table``: place at the pre-grasp pose, approach, close, lift, hold, shake (``shake``, on by default), on a
+    support or in free space (the pipeline's protocol). ``acronym``: ACRONYM's free-space protocol, placed at the
+    grasp with the jaws open, close, shake along and about the hand's axes, label = object still between the
+    fingers (:class:`AcronymParams`)."""
     acronym: AcronymParams = field(default_factory=AcronymParams)
     """Settings of the ``acronym`` protocol (ignored by the others)."""
     graspgen: GraspGenParams = field(default_factory=GraspGenParams)
@@ -371,19 +380,33 @@ class LiftParams:
     lift_acceleration: float = 5.0
     """Acceleration and deceleration (m/s^2) of the lift profile (what the grip must resist on top of gravity)."""
     hold_time: float = 0.2
-    """Time (s) the gripper holds still at the top before the outcome is judged (or the shake starts)."""
-    shake: bool = False
-    """ACRONYM-style shake after the hold: ``shake_cycles`` oscillations of the TCP along world z (linear
-    acceleration against the grip's friction), then as many about the TCP x (closing) axis (angular acceleration,
-    resisted only by the pads' torsional friction, the weak axis of a two-finger grasp)."""
-    shake_amplitude: float = 0.02
-    """Peak displacement (m) of the vertical shake (peak acceleration ~ amplitude * (2 pi frequency)^2)."""
-    shake_angle: float = 0.2
-    """Peak rotation (rad) of the rotational shake about the TCP x axis."""
-    shake_frequency: float = 2.0
-    """Frequency (Hz) of both shakes. Each is a sine under a Hann window, so it starts and ends at rest."""
+    """Time (s) the gripper holds still at the top before the shake starts (or, with ``shake`` off, before the
+    outcome is judged)."""
+    shake: bool = True
+    """ACRONYM's shake after the hold, on by default (the disturbance of the ``table`` protocol): ``shake_cycles``
+    oscillations of the TCP along world z (linear acceleration against the grip's friction), then as many about the
+    TCP x (closing) axis through the TCP (angular acceleration, resisted only by the pads' torsional friction, the
+    weak axis of a two-finger grasp); the slip rules are checked throughout. ACRONYM (Eppner et al., ICRA 2021,
+    arXiv:2011.09584) shakes "up and down along the approach direction", then rotates about the fingers' axis, and
+    publishes no magnitudes; the numbers below are :class:`AcronymParams`' (its docstring gives the sources and the
+    argument): the order and rotation-to-translation ratio of the group's public FleX grasping scene, and a ~1 g
+    peak so that the grip carries 0-2 g, twice the object's weight at the peak. Here the linear shake is along world
+    z, i.e. along gravity, as the ``acronym`` protocol's is along its approach-axis gravity, so the same argument
+    holds. Costs 2 x ``shake_cycles / shake_frequency`` s (500 steps at 2 ms by default). False: lift and hold
+    only (what the protocol did by default before)."""
+    shake_amplitude: float = 0.015
+    """Peak displacement (m) of the vertical shake; :attr:`AcronymParams.shake_amplitude`. Peak acceleration ~
+    1.05 * amplitude * (2 pi frequency)^2 = 9.9 m/s^2 (~1 g) at 4 Hz, peak speed 0.38 m/s (within a Franka arm's
+    Cartesian limits of 13 m/s^2 and 1.7 m/s)."""
+    shake_angle: float = 0.15
+    """Peak rotation (rad) of the rotational shake about the TCP x axis; :attr:`AcronymParams.shake_angle`: the FleX
+    scene's pi/32 rad per cm of linear amplitude, 99 rad/s^2 at the peak (1 g tangential 10 cm from the axis)."""
+    shake_frequency: float = 4.0
+    """Frequency (Hz) of both shakes; :attr:`AcronymParams.shake_frequency`. Each is a sine under a Hann window, so
+    it starts and ends at rest."""
     shake_cycles: int = 2
-    """Oscillations per shake axis."""
+    """Oscillations per shake axis; :attr:`AcronymParams.shake_cycles` (the fewest for which the Hann-windowed sine
+    swings fully both ways)."""
 
     # -- outcome thresholds -----------------------------------------------------------------------------------------
     target_touch_fails: bool = False
