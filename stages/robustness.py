@@ -3,7 +3,8 @@ object's planar pose, the object's mass, centre of mass and friction).
 
 One task per scene; the work is :func:`graspgen.quality.robustness.scene_robustness` (see there for what is
 perturbed and the columns: ``robustness``, and ``grip_robustness`` over the copies not stopped by a collision).
-Version 2: 14 draws per copy (mass, centre of mass, friction), the ``grip_robustness`` columns.
+Version 2: 14 draws per copy (mass, centre of mass, friction), the ``grip_robustness`` columns. Version 3: the
+centre-of-mass offset is on by default (5 mm) and held over the object's support (``resting_com_offset``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from stages.base import GraspStage
 class RobustnessStage(GraspStage):
     name = "robustness"
     inputs = ("rollouts", "grasps", "scenes", "objects")
-    version = 2
+    version = 3
     ext = "parquet"
 
     def params(self, config: Any) -> RobustnessTaskParams:

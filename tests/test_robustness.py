@@ -11,6 +11,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import trimesh
+from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 from scipy.stats import binomtest
 
@@ -24,11 +25,15 @@ from graspgen.quality.robustness import (
     RADIUS_AXES,
     SCHEMA,
     RobustnessParams,
+    _project_onto_halfspaces,
+    _with_object_pose,
     grasp_robustness,
     initial_object_pose,
     perturbed_poses,
+    resting_com_offset,
     rollout_with_object_pose,
     rotvec_to_matrix,
+    support_points,
     truncated_friction,
     wilson_interval,
 )
@@ -131,7 +136,11 @@ def test_perturbations_are_in_the_tcp_frame():
 
 
 def _bundled_box() -> ObjectRecord:
-    entry = catalog()["box"]
+    return _bundled("box")
+
+
+def _bundled(name: str) -> ObjectRecord:
+    entry = catalog()[name]
     prep = prepare_object(ASSETS / entry["file"], density=entry["density"], rng=np.random.default_rng(0))
     return ObjectRecord(
         name=prep.name,
@@ -451,3 +460,100 @@ def test_config_errors_name_the_key(tmp_path):
         small(tmp_path, tmp_path, "robustness.translation_sigma=-0.001")
     with pytest.raises(ConfigError, match="robustness.radius_max_rotation: must be in"):
         small(tmp_path, tmp_path, "robustness.radius_max_rotation=4")
+
+
+# ------------------------------------------------------------------------------------------------ centre of mass
+
+
+def _slow_projection(x: np.ndarray, A: np.ndarray, b: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """The nearest point of ``{y : A y >= b}`` to ``x`` by a general-purpose constrained minimiser (SLSQP)."""
+    return minimize(lambda y: np.sum((y - x) ** 2), start, jac=lambda y: 2 * (y - x), method="SLSQP",
+                    constraints=[{"type": "ineq", "fun": lambda y: A @ y - b, "jac": lambda y: A}],
+                    options={"ftol": 1e-14, "maxiter": 500}).x
+
+
+def test_projection_onto_halfspaces_matches_a_slow_quadratic_program():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        A = rng.standard_normal((6, 3))
+        inside = rng.standard_normal(3) * 0.01
+        b = A @ inside - rng.random(6) * 0.01  # the set holds `inside`
+        x = inside + rng.standard_normal(3) * 0.05
+        ours = _project_onto_halfspaces(x, A, b)
+        slow = _slow_projection(x, A, b, inside)
+        assert np.all(A @ ours - b >= -1e-9)
+        np.testing.assert_allclose(ours, slow, atol=1e-6)
+
+
+def _resting(record: ObjectRecord, pose: np.ndarray) -> tuple[LiftSimulator, str]:
+    spec = build_scene_spec([placed_object(record, pose, FRICTION, visual=False)], SupportParams())
+    attach_gripper(spec, GRIPPER)
+    return LiftSimulator(spec.compile(), LiftParams()), object_body_name(0, record.name)
+
+
+def _drift(simulator: LiftSimulator, body: str, offset: np.ndarray, seconds: float = 0.6) -> float:
+    """How far (m) the target's origin moves in ``seconds`` with its centre of mass moved by ``offset`` (mesh frame)
+    and nothing touching it but its support (the gripper made non-colliding)."""
+    import mujoco
+
+    m = _with_object_pose(simulator, body, None, 1.0, offset, None).model
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, int(b)) or "" for b in m.geom_bodyid]
+    gripper = np.array([n.startswith("gripper/") for n in names])
+    m.geom_contype[gripper] = 0
+    m.geom_conaffinity[gripper] = 0
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body)
+    mujoco.mj_forward(m, d)
+    start = d.xpos[bid].copy()
+    for _ in range(int(seconds / m.opt.timestep)):
+        mujoco.mj_step(m, d)
+    return float(np.linalg.norm(d.xpos[bid] - start))
+
+
+def test_support_of_a_box_lying_flat_is_its_bottom_face(box_scene):
+    record, sim, body, verts = box_scene
+    support = support_points(sim, body)
+    T = initial_object_pose(sim, body)
+    world = support @ T[:3, :3].T + T[:3, 3]
+    assert len(world) == 4  # the four corners of the 70 x 120 mm face
+    np.testing.assert_allclose(np.ptp(world[:, :2], axis=0), [0.07, 0.12], atol=1e-4)
+    assert np.ptp(world[:, 2]) < 1e-4 and abs(world[:, 2].min() - verts[:, 2].min()) < 1e-4
+    # Offsets well inside the face are kept whole; one past its edge is pulled back inside, the height kept
+    kept = np.array([0.004, -0.003, 0.005])
+    np.testing.assert_allclose(resting_com_offset(kept, support, T, record.center_of_mass), kept, atol=1e-12)
+    far = T[:3, :3].T @ np.array([0.06, 0.0, 0.002])  # 6 cm along world x: the face's half width is 35 mm
+    pulled = T[:3, :3] @ resting_com_offset(far, support, T, record.center_of_mass)
+    assert 0.02 < pulled[0] < 0.035 and abs(pulled[1]) < 1e-6 and pulled[2] == pytest.approx(0.002, abs=1e-6)
+
+
+def test_a_cylinder_on_its_side_keeps_only_offsets_that_do_not_roll_it():
+    record = _bundled("cylinder")
+    axis_horizontal = [i for i, P in enumerate(record.stable_poses) if abs(P[2, 2]) < 0.1]  # mesh z = its axis
+    assert axis_horizontal, "the bundled cylinder should have a stable pose on its side"
+    sim, body = _resting(record, record.stable_poses[axis_horizontal[0]])
+    support = support_points(sim, body)
+    T = initial_object_pose(sim, body)
+    R = T[:3, :3]
+    world = support @ R.T + T[:3, 3]
+    across = np.cross([0.0, 0.0, 1.0], R[:, 2])
+    assert np.ptp(world @ R[:, 2]) > 0.1 and np.ptp(world @ across) < 3e-3  # a line (or a facet) along the axis
+    rng = np.random.default_rng(5)
+    raw_drift, kept_drift = [], []
+    for _ in range(8):
+        offset = 0.005 * rng.standard_normal(3)
+        kept = resting_com_offset(offset, support, T, record.center_of_mass)
+        assert abs((R @ kept) @ R[:, 2] - (R @ offset) @ R[:, 2]) < 1e-9  # along the axis: kept
+        assert abs((R @ kept) @ across) <= abs((R @ offset) @ across) + 1e-12
+        raw_drift.append(_drift(sim, body, offset))
+        kept_drift.append(_drift(sim, body, kept))
+    # Unprojected, a centre off the support rolls the cylinder away before any hand arrives; projected, it moves no
+    # more than the nominal cylinder does (placed at its stable pose unsettled, it sinks into the soft contact)
+    nominal = _drift(sim, body, np.zeros(3))
+    assert max(raw_drift) > nominal + 0.005
+    assert max(kept_drift) < nominal + 5e-4
+
+
+def test_no_support_in_free_space_keeps_the_offset():
+    offset = np.array([0.003, -0.002, 0.001])
+    np.testing.assert_array_equal(resting_com_offset(offset, np.zeros((0, 3)), np.eye(4), np.zeros(3)), offset)

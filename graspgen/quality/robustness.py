@@ -14,8 +14,10 @@ whose rollout succeeded (outcome 5), ``num_perturbations`` perturbed copies are 
   object can start touching a neighbour; the physics resolves that and the rules may then label the copy 1 or 2.
 * the target's physics: its mass (and inertia) scaled by ``exp(mass_sigma z)`` (log-normal, median 1: uniform
   density scaling, so the centre of mass and the inertia's shape stay), its centre of mass moved by
-  ``N(0, com_sigma^2 I)`` (m, mesh frame; the inertia is kept about the new centre; off by default, see
-  :attr:`RobustnessParams.com_sigma`), and its sliding friction
+  ``N(0, com_sigma^2 I)`` (m, mesh frame; the inertia is kept about the new centre) and then held over the
+  object's support (:func:`resting_com_offset`: the object is where it was seen, at rest, so its centre of mass is
+  above what it rests on; a horizontal shift that would tip or roll it is pulled back inside the support polygon),
+  and its sliding friction
   coefficient (which governs the gripper-target contacts) drawn from ``N(mu, friction_sigma^2)`` truncated to
   ``> 0`` (one draw, by inverse CDF). The copy's epsilon uses its own centre of mass and (unless
   ``metrics.epsilon.friction`` fixes one) its own friction.
@@ -78,6 +80,8 @@ from typing import Any
 import mujoco
 import numpy as np
 import pyarrow as pa
+from scipy.optimize import nnls
+from scipy.spatial import ConvexHull, QhullError
 
 from graspgen.geometry.contacts import closing_contacts
 from graspgen.io.arrow import column_array, variable_list
@@ -107,6 +111,8 @@ __all__ = [
     "rotvec_to_matrix",
     "perturbed_poses",
     "truncated_friction",
+    "support_points",
+    "resting_com_offset",
     "grasp_robustness",
     "robustness_radius",
     "scene_robustness",
@@ -156,14 +162,16 @@ class RobustnessParams:
     record's mass is the mesh volume times an assumed density (or a catalogue mass), and the density of household
     objects of one kind spreads by tens of percent (a full or half-empty bottle, wood versus plastic). Dex-Net 2.0
     perturbs no mass (its metric is quasi-static); 0 turns it off."""
-    com_sigma: float = 0.0
+    com_sigma: float = 0.005
     """Standard deviation (m) of the target's centre-of-mass offset along each mesh axis. The record's centre of
     mass assumes uniform density; contents (liquid, a battery) move it by millimetres to a centimetre on
     hand-sized objects, so about 5 mm is the physical size of the error (Dex-Net's object random variable has such
-    a term, ``sigma_obj_com`` in ``dexnet/grasping/random_variables.py``). Off (0) by default all the same: the
-    object is not re-settled, so its resting pose is the nominal centre's, and a shifted centre sets it moving on
-    its own (a cylinder on its side rolls); the rules then label the copy 1 although the hand never touched it.
-    Measured on ``configs/smoke.yaml`` at 5 mm: the cylinder's copies went from 1-4 to 16 of 20 code 1."""
+    a term, ``sigma_obj_com`` in ``dexnet/grasping/random_variables.py``). The copy's object stays in its observed
+    resting pose, so the offset is made consistent with it (:func:`resting_com_offset`): its horizontal part is
+    pulled back inside the support polygon (a cylinder on its side keeps only the shift along its axis and the
+    vertical). Without that a shifted centre sets the object moving on its own (a cylinder on its side rolls) and
+    the rules label the copy 1 although the hand never touched it (measured on ``configs/smoke.yaml`` at 5 mm
+    before the projection: the cylinder's copies went from 1-4 to 16 of 20 code 1). 0 turns it off."""
     friction_sigma: float = 0.1
     """Standard deviation of the target's sliding friction coefficient (dimensionless, absolute), truncated to
     ``> 0``: the copy's coefficient is drawn from ``N(mu, friction_sigma^2)`` restricted to ``(0, inf)``. 0.1 is
@@ -372,8 +380,11 @@ def _with_object_pose(simulator: LiftSimulator, target_body: str, T_world_object
         qpos[a + 3 : a + 7] = quat
     m.body_mass[bid] *= mass_scale
     m.body_inertia[bid] *= mass_scale
-    if com_offset is not None:
+    if com_offset is not None and np.any(com_offset):
         m.body_ipos[bid] += com_offset
+        # A body compiled with its inertial frame on its own frame is flagged simple; the moved centre breaks that.
+        m.body_simple[bid] = 0
+        m.body_sameframe[bid] = 0
     if friction is not None:
         m.geom_friction[m.geom_bodyid == bid, 0] = friction
     # Constants that depend on the masses (the constraint solver's inverse weights, subtree masses), recomputed at
@@ -381,6 +392,185 @@ def _with_object_pose(simulator: LiftSimulator, target_body: str, T_world_object
     mujoco.mj_setConst(m, mujoco.MjData(m))
     # The simulator's model already carries the protocol's physics and grip force; applying them again is a no-op.
     return LiftSimulator(m, simulator.params, qpos=qpos, prefix=simulator.prefix)
+
+
+SUPPORT_TOLERANCE = 5e-5
+"""Height (m) over the target's lowest collision vertex within which a vertex counts as resting on what holds it up
+(:func:`support_points`). The settle leaves a face lying flat level to a few micrometres, while the next vertex
+line of a faceted cylinder on its side stands 0.12 mm up (a 64-gon of 25 mm radius): counting it would widen the
+support to a facet the cylinder does not rest on, and centres moved over it roll the cylinder (measured: up to
+2.6 mm of drift at 0.2 mm, none over 0.12 mm at this value). Too small a value only shrinks the polygon, which
+keeps less of the drawn offsets: the safe side."""
+
+TIPPING_MARGIN_FLOOR = math.radians(10.0)
+"""A copy's centre of mass keeps the object at least as hard to tip as the nominal one, or this hard (rad), whichever
+is less (:func:`resting_com_offset`). The tipping angle about a support edge is ``atan(d / h)``: ``d`` the centre's
+horizontal distance inside that edge, ``h`` its height over the support. 10 degrees is far above what the settle
+and the contact solver's softness tilt a resting object (well under a degree) and what a brushing finger does; a
+nominal object resting with less (a cylinder on its side: a facet of a few mm, ~3 degrees) keeps its own."""
+
+def support_points(simulator: LiftSimulator, target_body: str) -> np.ndarray:
+    """Where ``target_body`` rests on what holds it up, in the simulator's initial configuration ``model.qpos0`` (the
+    scene at rest): the vertices of its collision meshes within :data:`SUPPORT_TOLERANCE` of its lowest one, when
+    something other than the gripper touches it there. Taken from the geometry, not from MuJoCo's contact points:
+    those of a convex mesh on a box are a few points placed by the collision routine, not the supporting face.
+
+    Returns
+    -------
+    (k, 3) float
+        Points, m, in the target's body frame (the mesh frame); ``k = 0`` when nothing holds it up from below (an
+        object in free space).
+    """
+    m = simulator.model
+    bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, target_body)
+    if bid < 0:
+        raise ValueError(f"target_body: no body named {target_body!r}")
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    mujoco.mj_forward(m, d)
+    vertices = []
+    for g in np.flatnonzero((m.geom_bodyid == bid) & (m.geom_type == mujoco.mjtGeom.mjGEOM_MESH)
+                            & ((m.geom_contype != 0) | (m.geom_conaffinity != 0))):
+        mesh = int(m.geom_dataid[g])
+        start, count = int(m.mesh_vertadr[mesh]), int(m.mesh_vertnum[mesh])
+        local = m.mesh_vert[start:start + count].astype(np.float64)
+        vertices.append(local @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g])
+    if not vertices:
+        return np.zeros((0, 3))
+    world = np.concatenate(vertices)
+    low = float(world[:, 2].min())
+    held = False
+    for c in d.contact[: d.ncon]:
+        b1, b2 = int(m.geom_bodyid[c.geom1]), int(m.geom_bodyid[c.geom2])
+        other = b2 if b1 == bid else b1 if b2 == bid else -1
+        name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, other) if other >= 0 else None
+        if other >= 0 and other != bid and not (name or "").startswith(simulator.prefix) \
+                and c.pos[2] <= low + SUPPORT_TOLERANCE + 1e-3:
+            held = True
+            break
+    if not held:
+        return np.zeros((0, 3))
+    bottom = world[world[:, 2] <= low + SUPPORT_TOLERANCE]
+    R, t = d.xmat[bid].reshape(3, 3), d.xpos[bid]
+    return (bottom - t) @ R
+
+
+def _support_halfplanes(polygon: np.ndarray) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, float,
+                                                                                      float]:
+    """The support polygon ``(k, 2)`` as half-planes or, when it has no area, as a segment.
+
+    Returns ``(normals (e, 2), offsets (e,))``, inward unit normals of the convex hull's edges (inside is ``normals @ x
+    - offsets >= 0``, that value being the distance inside each edge); or, for collinear points (a cylinder on its
+    side resting on one line of vertices) or a single point, ``(centre (2,), direction (2,), lo, hi)``: the segment
+    ``centre + s direction`` for ``s`` in ``[lo, hi]``."""
+    centre = polygon.mean(axis=0)
+    spread = polygon - centre
+    _, sv, vt = np.linalg.svd(spread, full_matrices=False)
+    flat = len(polygon) < 3 or sv[0] == 0.0 or sv[1] <= 1e-6 * sv[0]
+    if not flat:
+        try:
+            hull = ConvexHull(polygon)
+        except QhullError:  # nearly collinear beyond the tolerance above
+            flat = True
+    if flat:
+        u = vt[0] if sv[0] > 0 else np.array([1.0, 0.0])
+        along = spread @ u
+        return centre, u, float(along.min()), float(along.max())
+    return -hull.equations[:, :2], hull.equations[:, 2]  # qhull's normals are outward and unit
+
+
+def resting_com_offset(offset: np.ndarray, support: np.ndarray, T_world_object: np.ndarray,
+                       center_of_mass: np.ndarray) -> np.ndarray:
+    """A centre-of-mass offset consistent with the object resting, stably, where it was seen.
+
+    An object seen at rest has its centre of mass over its support polygon (the convex hull of where it touches what
+    holds it, seen from above), and it stays put when nudged. A drawn offset that breaks either would tip or roll the
+    object before the hand arrives: a different scene, not a heavier side of this one. So the shifted centre ``c``
+    must keep, on every support edge, a tipping angle ``atan(d_e(c) / h(c))`` (``d_e`` its horizontal distance
+    inside edge ``e``, ``h`` its height over the support) of at least ``min(nominal angle,``
+    :data:`TIPPING_MARGIN_FLOOR` ``)``. These are linear constraints on ``c`` (a convex polyhedron holding the nominal
+    centre); the drawn centre is replaced by the nearest point in it at the same height (a least-distance program),
+    or, where no point at that height qualifies, by the nearest point in it. A box flat on a face
+    keeps millimetre offsets whole; a cylinder on its side (resting on a line of its facets) keeps the shift along its
+    axis and the vertical one, not the one across (which would roll it). No support (free space): the offset as given. A
+    nominal centre not over its support (the object leans on a neighbour, the polygon says nothing of its balance):
+    the offset without its horizontal part.
+
+    Parameters
+    ----------
+    offset : (3,) float
+        Drawn offset, m, mesh frame.
+    support : (k, 3) float
+        :func:`support_points`, mesh frame.
+    T_world_object : (4, 4) float
+        The object's pose (mesh frame to world) at rest.
+    center_of_mass : (3,) float
+        Nominal centre of mass, m, mesh frame.
+
+    Returns
+    -------
+    (3,) float
+        The offset, m, mesh frame.
+    """
+    offset = np.asarray(offset, dtype=np.float64).reshape(3)
+    support = np.asarray(support, dtype=np.float64).reshape(-1, 3)
+    if len(support) == 0 or not offset.any():
+        return offset.copy()
+    T = np.asarray(T_world_object, dtype=np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    points = support @ R.T + t
+    c0 = R @ np.asarray(center_of_mass, dtype=np.float64).reshape(3) + t
+    w = R @ offset
+    z_support = float(points[:, 2].mean())
+    h0 = c0[2] - z_support
+    support_2d = _support_halfplanes(points[:, :2])
+    if len(support_2d) == 4:  # a line: the centre stays on it, within its ends
+        centre, u, lo, hi = support_2d
+        across = np.array([-u[1], u[0]]) @ (c0[:2] - centre)
+        if abs(across) > 1e-6 or h0 <= 0.0:
+            w[:2] = 0.0  # leaning on something: the support line does not decide its balance
+            return R.T @ w
+        along = float(np.clip(u @ (c0[:2] + w[:2] - centre), lo, hi))
+        w[:2] = centre + across * np.array([-u[1], u[0]]) + along * u - c0[:2]
+        return R.T @ w
+    normals, offsets = support_2d
+    inside = normals @ c0[:2] - offsets
+    if inside.min() < -1e-6 or h0 <= 0.0:
+        w[:2] = 0.0  # leaning on something: the support polygon does not decide its balance
+        return R.T @ w
+    slope = min(max(float(inside.min()), 0.0) / h0, math.tan(TIPPING_MARGIN_FLOOR))  # tan of the tipping angle
+    # Constraints a_e . c >= b_e: d_e(c) - slope * (c_z - z_support) >= 0.
+    A = np.column_stack([normals, np.full(len(normals), -slope)])
+    b = offsets - slope * z_support
+    c = c0 + w
+    if np.all(A @ c - b >= -1e-12):
+        return offset.copy()
+    try:  # the drawn height kept, the horizontal position pulled back
+        c[:2] = _project_onto_halfspaces(c[:2], normals, offsets + slope * (c[2] - z_support))
+    except ValueError:  # raised so far that no position keeps the margin: the height gives way too
+        c = _project_onto_halfspaces(c, A, b)
+    return R.T @ (c - c0)
+
+
+def _project_onto_halfspaces(x: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The point of ``{y : A @ y >= b}`` (non-empty) nearest ``x (n,)``: least-distance programming by non-negative
+    least squares (Lawson and Hanson, "Solving Least Squares Problems", 1974, ch. 23): with ``G = A``,
+    ``h = b - A x``, minimise ``|E u - f|`` over ``u >= 0`` for ``E = [G^T; h^T]``, ``f = (0, ..., 0, 1)``; the
+    residual ``r = E u - f`` gives the step ``z = -r[:n] / r[n]``. Exact up to round-off, no iteration count."""
+    h = b - A @ x
+    if np.all(h <= 0.0):
+        return x.copy()
+    E = np.vstack([A.T, h[None, :]])
+    f = np.zeros(len(x) + 1)
+    f[-1] = 1.0
+    u, _ = nnls(E, f)
+    r = E @ u - f
+    if abs(r[-1]) < 1e-12:
+        raise ValueError("A, b: the constraints have no common point")
+    y = x - r[:-1] / r[-1]
+    if np.any(A @ y - b < -1e-9 * max(1.0, float(np.abs(b).max()))):
+        raise ValueError("A, b: the constraints have no common point (or are too ill-conditioned to tell)")
+    return y
 
 
 def _target_friction(simulator: LiftSimulator, target_body: str) -> float:
@@ -502,7 +692,8 @@ def grasp_robustness(
         raise ValueError(f"draws: expected shape (n >= 1, {DRAWS_PER_COPY}), got {draws.shape}")
     poses = perturbed_poses(T_tcp_world, params.translation_sigma * draws[:, 0:3],
                             params.rotation_sigma * draws[:, 3:6])
-    T_obj0 = initial_object_pose(simulator, target_body) if params.object_noise else None
+    T_obj0 = initial_object_pose(simulator, target_body) if params.object_noise or params.com_sigma > 0 else None
+    support = support_points(simulator, target_body) if params.com_sigma > 0 else np.zeros((0, 3))
     physics = params.mass_sigma > 0 or params.com_sigma > 0 or params.friction_sigma > 0
     mu_sim = _target_friction(simulator, target_body)
     n = len(draws)
@@ -519,7 +710,8 @@ def grasp_robustness(
                                                params.object_rotation_sigma)
                 T_obj = planar_object_noise(T_obj0, geometry.center_of_mass, dx, dy, yaw)
             mass_scale = math.exp(params.mass_sigma * draws[j, 9])
-            offset = params.com_sigma * draws[j, 10:13]
+            offset = resting_com_offset(params.com_sigma * draws[j, 10:13], support,
+                                        T_obj0 if T_obj is None else T_obj, geometry.center_of_mass)
             mu = truncated_friction(mu_sim, params.friction_sigma, draws[j, 13])
             coms[j] += offset
             if epsilon_friction_follows:
