@@ -30,7 +30,7 @@ top uniform in [0, 45] mm (the deepest put the fingertips into the table); width
 closing axis (clipped to the 2F-85's 85 mm). Object friction 0.5. A realistic mix of outcomes: table collisions,
 misses past the object's ends, and can grasps above its equator that squeeze it out downwards (slips).
 
-Run: ``python bench/bench_rollouts.py [--rollouts N] [--rounds R] [--seed S]``; prints a table and writes
+Run: ``python bench/bench_rollouts.py [--rollouts N] [--rounds R] [--seed S] [--gripper G]``; prints a table and writes
 ``bench/results_rollouts.json``.
 """
 
@@ -72,8 +72,9 @@ def load_object(name: str) -> PreparedObject:
                           rng=np.random.default_rng(0), coacd_cache_dir=cache)
 
 
-def build_scene(obj: PreparedObject) -> tuple[mujoco.MjModel, np.ndarray, np.ndarray]:
-    """Table + the object in its most probable stable pose + the 2F-85. Returns (model, settled qpos, world
+def build_scene(obj: PreparedObject, gripper: str = G.DEFAULT_GRIPPER) -> tuple[mujoco.MjModel, np.ndarray,
+                                                                                np.ndarray]:
+    """Table + the object in its most probable stable pose + ``gripper``. Returns (model, settled qpos, world
     vertices (n, 3) of the settled object)."""
     spec = mujoco.MjSpec()
     G.physics_options(spec)
@@ -99,7 +100,7 @@ def build_scene(obj: PreparedObject) -> tuple[mujoco.MjModel, np.ndarray, np.nda
                       userface=np.asarray(faces).ravel().tolist())
         body.add_geom(name=f"obj/0_{obj.name}/part_{i}", type=mujoco.mjtGeom.mjGEOM_MESH,
                       meshname=f"{obj.name}_part_{i}", friction=[FRICTION, 0.005, 0.0001])
-    G.attach_gripper(spec, G.load_gripper(G.DEFAULT_GRIPPER))
+    G.attach_gripper(spec, G.load_gripper(gripper))
     model = spec.compile()
     # Settle (what the scenes stage does): park the gripper far away, let the object come to rest, keep the qpos.
     data = mujoco.MjData(model)
@@ -235,6 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rollouts", type=int, default=300, help="rollouts per object and setting")
     parser.add_argument("--rounds", type=int, default=3, help="timed passes (the best counts)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--gripper", default=G.DEFAULT_GRIPPER,
+                        help="bundled gripper name or gripper file (e.g. panda, robotiq_2f85_mesh)")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     rows = []
@@ -242,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         t = time.perf_counter()
         obj = load_object(name)
         prep_s = time.perf_counter() - t
-        model, qpos, verts = build_scene(obj)
+        model, qpos, verts = build_scene(obj, args.gripper)
         grasps = sample_grasps(verts, args.rollouts, np.random.default_rng(args.seed))
         for shake in (False, True):
             params = LiftParams(shake=shake)
@@ -267,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     out = {
         "bench": "rollouts",
         "params": {k: v for k, v in dataclasses.asdict(LiftParams()).items()},
-        "gripper": G.DEFAULT_GRIPPER,
+        "gripper": args.gripper,
         "object_friction": FRICTION,
         "mujoco": mujoco.__version__,
         "python": sys.version.split()[0],
