@@ -17,8 +17,8 @@ separates FleX-held from FleX-lost grasps (Mann-Whitney; 0.5 = no better than ch
 of our closing contacts, pad model, the object's friction, torsional 0.005 m, :func:`graspgen.quality.epsilon.
 grasp_epsilon`) and, with ``--robustness N``, ``robustness`` and ``grip_robustness`` (the success rate of N copies of
 the grasp perturbed as the robustness stage perturbs them, its default noise: TCP 5 mm / 5 deg per axis, object mass
-log-normal 0.2, centre of mass 5 mm per axis, friction +-0.1; rolled out with the same protocol by the evaluate path itself,
-``evaluate_grasps(robustness=RobustnessParams(num_perturbations=N))``, i.e. ``gen evaluate --robustness N``, the
+log-normal 0.2, centre of mass 5 mm per axis, friction +-0.1; rolled out with the same protocol by the evaluate path
+itself, ``evaluate_grasps(robustness=RobustnessParams(num_perturbations=N))``, i.e. ``gen evaluate --robustness N``, the
 draws seeded from the poses and settings; ``grip_robustness`` leaves out the copies stopped by a collision at
 placement or approach; skipped with a note otherwise: it costs N rollouts per success). Also the median motion of
 the object during closing and shaking, ours against FleX's (ACRONYM's ``object_motion_during_*``), for the grasps
