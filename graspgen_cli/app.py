@@ -441,7 +441,8 @@ def evaluate(
     --config: the protocol is its rollouts.lift, CoACD its objects.coacd (else cheap), cache in run.cache_dir.
 
     --robustness N: N perturbed copies of each success, as the robustness stage perturbs them (its config section:
-    TCP pose, object mass and friction; radius not computed); the draws are seeded from the poses and settings.
+    TCP pose, object mass, centre of mass and friction; radius not computed); the draws are seeded from the poses and
+    settings.
     """
     import dataclasses
     import json
