@@ -390,7 +390,8 @@ def evaluate(
     grasps: Annotated[
         Path, typer.Option("--grasps", help="ACRONYM grasp file (.h5, .hdf5) or Parquet of TCP poses (.parquet).")
     ],
-    gripper: Annotated[str, typer.Option("--gripper", help="Gripper to evaluate with: box_jaw, panda, robotiq_2f85.")],
+    gripper: Annotated[str, typer.Option(
+        "--gripper", help="Gripper to evaluate with: box_jaw, panda, robotiq_2f85, robotiq_2f85_mesh, or a file.")],
     output: Annotated[Path, typer.Option("--out", "-o", help="Output Parquet file, one row per input grasp.")],
     mesh_root: Annotated[
         Path | None, typer.Option("--mesh-root", help="Folder ACRONYM's object/file is relative to (default: cwd).")

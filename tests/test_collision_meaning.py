@@ -202,7 +202,7 @@ def _settled_scene(target, neighbour, offset) -> tuple[mujoco.MjSpec, np.ndarray
     return build_scene_spec(objects, SupportParams()), settled[0]
 
 
-def _random_grasps(vertices: np.ndarray, n: int, rng: np.random.Generator):
+def _random_grasps(vertices: np.ndarray, n: int, rng: np.random.Generator, max_width: float):
     """Grasp-like poses around an object (world vertices): approach tilted up to 75 degrees from straight down,
     closing axis random about it, TCP within ~1 cm of the object's centre sideways and 0-35 mm in from its surface
     along the approach, width the object's extent along the closing axis +- 8 mm. A mix of free grasps, fingers
@@ -218,12 +218,14 @@ def _random_grasps(vertices: np.ndarray, n: int, rng: np.random.Generator):
         extent = float(np.ptp(vertices @ x))
         p = centre + rng.normal(0.0, 0.008, 3)
         p = p + z * (float(((vertices - centre) @ z).min()) + rng.uniform(0.0, 0.035))
-        width = float(np.clip(extent + rng.normal(0.0, 0.008), 0.0, GRIPPER.max_width))
+        width = float(np.clip(extent + rng.normal(0.0, 0.008), 0.0, max_width))
         out.append((_pose(np.stack([x, np.cross(z, x), z], 1), p), width))
     return out
 
 
-def test_prefilter_and_rollout_agree_on_random_poses_around_objects(library):
+@pytest.mark.parametrize("gripper_name", ["robotiq_2f85", "robotiq_2f85_mesh"])
+def test_prefilter_and_rollout_agree_on_random_poses_around_objects(library, gripper_name):
+    gripper = G.load_gripper(gripper_name)
     scenes = (("box", "cylinder", (0.0, 0.09)), ("cylinder", "box", (0.08, 0.0)), ("l_bracket", "box", (0.0, -0.09)))
     n = 200
     agree, pairs = {}, []
@@ -231,11 +233,12 @@ def test_prefilter_and_rollout_agree_on_random_poses_around_objects(library):
         target = library[target_name]
         spec, pose = _settled_scene(target, library[neighbour_name], np.array(offset))
         body = object_body_name(0, target.name)
-        checker = P.CollisionChecker(spec, GRIPPER)
+        checker = P.CollisionChecker(spec, gripper)
         full = spec.copy()
-        G.attach_gripper(full, GRIPPER)
+        G.attach_gripper(full, gripper)
         sim = LiftSimulator(full.compile(), LiftParams())
-        grasps = _random_grasps(target.vertices @ pose[:3, :3].T + pose[:3, 3], n, np.random.default_rng(0))
+        grasps = _random_grasps(target.vertices @ pose[:3, :3].T + pose[:3, 3], n, np.random.default_rng(0),
+                                gripper.max_width)
         pre = checker.check(np.stack([T for T, _ in grasps]), [w for _, w in grasps], body)
         roll = np.array([_approach_code(sim, T, w, body) for T, w in grasps])
         agree[target_name] = int(np.sum(pre == roll))
@@ -243,6 +246,7 @@ def test_prefilter_and_rollout_agree_on_random_poses_around_objects(library):
     total = sum(agree.values())
     report = f"agreement {total}/{len(pairs)} {agree}; (pre-filter, rollout) pairs that differ: " + str(
         sorted({p: pairs.count(p) for p in set(pairs) if p[0] != p[1]}.items()))
+    print(f"[{gripper_name}] {report}")
     assert total >= 0.95 * len(pairs), report
     assert all(a >= 0.92 * n for a in agree.values()), report
     # Every kind of code is exercised among the agreements.

@@ -168,7 +168,7 @@ def _pad_contacts(model, data) -> tuple[bool, bool]:
 
 def test_registry_holds_the_bundled_grippers():
     assert set(G.GRIPPERS) == {"robotiq_2f85", "robotiq_2f85_mesh", "panda", "box_jaw"}
-    assert G.DEFAULT_GRIPPER == "robotiq_2f85"
+    assert G.DEFAULT_GRIPPER == "robotiq_2f85_mesh"
     f85 = G.load_gripper("robotiq_2f85")
     assert (f85.min_width, f85.max_width) == (0.0, 0.085)
     assert 20.0 <= f85.force_limit <= 235.0  # Robotiq 2F-85 data sheet grip force range

@@ -218,9 +218,11 @@ def test_rows_recomputed_by_hand(pipeline_run):
                 _, distance, _ = trimesh.proximity.closest_point(geometry.mesh, p)
                 assert distance.max() < 2e-3, distance
             else:  # the pads closed onto the mesh at the grasp's object-frame pose
-                (c,) = closing_contacts(geometry.mesh, column_array(g, "pose_object", (4, 4))[i], GRIPPER)
+                gripper = load_gripper(g.column("gripper")[i].as_py())  # the grasps' own gripper
+                (c,) = closing_contacts(geometry.mesh, column_array(g, "pose_object", (4, 4))[i], gripper)
                 p, n, f = c.points, c.normals, c.finger
-            assert m.column("epsilon")[i].as_py() == ep.epsilon(p, n, f, geometry, 0.8)
+            mu = float(scene.friction[k])  # the object's friction in its scene
+            assert m.column("epsilon")[i].as_py() == ep.epsilon(p, n, f, geometry, mu)
             checked.add(source)
     assert checked == {"rollout", "raycast"}
 

@@ -13,6 +13,7 @@ import pytest
 import trimesh
 
 from graspgen.io.objects import read_object
+from graspgen.sim.scene_grasps import GraspsParams
 from pipeline.config import load_config
 from pipeline.errors import ConfigError
 from pipeline.scheduler import committed, run_pipeline
@@ -231,7 +232,8 @@ def test_run_prints_the_warnings_and_the_card_lists_them(tmp_path):
         "objects: mm_cylinder: mm_cylinder.obj: largest extent 90.0 units, assumed millimetres, scaled by 0.001",
         "object_grasps: big_box: object 'big_box': 0 of 4 positives, 0 of 2 negatives after 0 candidates: the "
         "sampler found no more antipodal pairs the gripper opens around (object_grasps.sampler, object_grasps.gripper)",
-        "grasps: scene_000000: gripper robotiq_2f85 cannot grasp object 'big_box': it is 200 mm across at its "
+        f"grasps: scene_000000: gripper {GraspsParams().gripper} cannot grasp object 'big_box': it is 200 mm across "
+        "at its "
         "narrowest, the gripper closes on at most 75 mm (85 mm stroke less grasps.sampler.min_clearance)",
     ]
     lines = result.stderr.splitlines()

@@ -55,9 +55,11 @@ PREFILTER_NAMES = {-1: "free", 0: "collision_with_ground", 1: "collision_with_ta
 class GraspsParams:
     """Settings of the ``grasps`` stage (config section ``grasps``)."""
 
-    gripper: str = "robotiq_2f85"
-    """Gripper model: robotiq_2f85, panda or box_jaw, or the path of a gripper file (.yaml, .yml, .json; relative
-    to the current folder; see graspgen.sim.grippers.read_gripper). The grasp table's gripper column holds it."""
+    gripper: str = "robotiq_2f85_mesh"
+    """Gripper model: robotiq_2f85_mesh (the Robotiq 2F-85 from its collision meshes, knuckles and 4-bar linkage),
+    robotiq_2f85 (the same hand as boxes: faster, no knuckles), panda or box_jaw, or the path of a gripper file
+    (.yaml, .yml, .json; relative to the current folder; see graspgen.sim.grippers.read_gripper). The grasp table's
+    gripper column holds it."""
     targets: tuple[str, ...] = ()
     """Object names to grasp; empty grasps every object of every scene."""
     max_per_object: int = 48
