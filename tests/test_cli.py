@@ -219,6 +219,17 @@ def test_error_text_is_printed_literally(tmp_path):
     assert f"{tmp_path / 'f' / '[bold]o[/]'}: {tmp_path / 'f'} is a file" in line
 
 
+def _as_from_a_terminal() -> None:
+    """In the child before exec: Ctrl-C handled as a shell starts a command, whatever this test process inherited.
+    A child inherits its parent thread's signal mask and an ignored SIGINT, and Python installs its
+    KeyboardInterrupt handler only when SIGINT is not ignored at start-up; the pytest process may carry either from
+    libraries it ran earlier (process pools block SIGINT while they spawn helpers)."""
+    import signal
+
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_says_the_run_can_be_resumed(tmp_path):
     """SIGINT to the whole process group, as Ctrl-C in a terminal sends it (the loky workers get it too)."""
     import os
@@ -230,7 +241,7 @@ def test_ctrl_c_says_the_run_can_be_resumed(tmp_path):
     command, env = toy_command("run", "--out", out, "--jobs", 2, "--set", "numbers.sleep=1",
                                "--set", "numbers.ids=[a, b, c, d, e, f, g, h]")
     proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_as_from_a_terminal)
     manifest = out / "shards" / "numbers" / "manifest.jsonl"
     deadline = time.monotonic() + 60
     while not (manifest.is_file() and manifest.read_text().strip()) and time.monotonic() < deadline:
