@@ -220,10 +220,10 @@ def test_error_text_is_printed_literally(tmp_path):
 
 
 def _as_from_a_terminal() -> None:
-    """In the child before exec: Ctrl-C handled as a shell starts a command, whatever this test process inherited.
-    A child inherits its parent thread's signal mask and an ignored SIGINT, and Python installs its
-    KeyboardInterrupt handler only when SIGINT is not ignored at start-up; the pytest process may carry either from
-    libraries it ran earlier (process pools block SIGINT while they spawn helpers)."""
+    """In the child before exec: Ctrl-C handled as a terminal starts a command, however the suite was launched.
+    A child inherits an ignored SIGINT (and a blocked one), and Python installs its KeyboardInterrupt handler only
+    when SIGINT is not ignored at start-up; a suite run as a background job of a non-interactive shell (``cmd &``,
+    ``nohup``) starts with SIGINT ignored, and the run under test would then never see the Ctrl-C."""
     import signal
 
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
