@@ -15,14 +15,19 @@ open hand with the object: collision), gravity off while the jaws close until th
 approach axis, the Hann-windowed shake (15 mm along the approach, then 0.15 rad about the closing axis, 2 cycles at
 4 Hz each), 0.1 s settle; success when both fingers touch the object at the end, lost as soon as neither does.
 
+Physical parameters as MuJoCo's models: sliding friction from the file, torsional friction 0.005 m at every contact
+(``--torsional``), the Panda's fingers geared to move symmetrically (one motor and a rack in the real hand; MuJoCo's
+model couples them too), 70 N of grip.
+
 What is Bullet's own: contacts are rigid (no MuJoCo solref/solimp softness; penetration is pushed out by the
 solver's error reduction); Bullet inflates every convex piece by its 1 mm collision margin, so each piece is shrunk
-by it first (faces moved 1 mm in: the inflated piece has the true faces and rounded edges); no torsional or rolling
-friction (a manifold's several points resist twisting); the hand follows its trajectory through a stiff fixed
-constraint (MuJoCo: a weld to a mocap body); the jaws are velocity-controlled joints whose motor force saturates at
-the grip force (MuJoCo: a damped actuator saturating at it); a jaw touches the object when a manifold point is
-closer than 0.5 mm. Time step 2 ms, 50 solver iterations (1 ms with 100 and 0.5 ms with 100 change 2% of the labels
-on 100 example-mug grasps).
+by it first (faces moved 1 mm in: the inflated piece has the true faces and rounded edges; ``--inflate X`` makes the
+object's pieces X fatter, a what-if); the hand follows its trajectory through a stiff fixed constraint (MuJoCo: a
+weld to a mocap body); the jaws are velocity-controlled joints whose motor force saturates at the grip force
+(MuJoCo: a damped actuator saturating at it); a jaw touches the object when a manifold point is closer than 0.5 mm.
+Time step 1 ms, 100 solver iterations: fewer iterations leave the jaw motors short of their force (50 at 2 ms give
+18 N of the 70); against 1 ms with 200 iterations (the same labels as 0.5 ms with 200) they change 0% of 100 bottle
+grasps and 2% of 100 example-mug grasps (2 ms with 200: 0% and 5%).
 
 Needs ``pybullet`` (``pip install -e '.[reference]'``); it is not a dependency of the package.
 
@@ -60,13 +65,14 @@ CALIBRATION = Path(os.environ.get("GRASPGEN_CALIBRATION", "/work/shared/calibrat
 RESULTS = ROOT / "bench" / "results_second_reference.json"
 PANDA = ROOT / "assets" / "grippers" / "panda"
 
-TIMESTEP = 0.002  # s (MuJoCo's: 2 ms; 1 ms and 0.5 ms change 2% of the labels, on 100 example-mug grasps)
-SOLVER_ITERATIONS = 50
+TIMESTEP = 0.001  # s
+SOLVER_ITERATIONS = 100  # fewer leave the jaw motors short of their force: 50 at 2 ms give 18 N of the 70
 MARGIN = 0.001  # m, Bullet's collision margin of a mesh piece loaded from a URDF (it inflates the piece by this;
 #               changeDynamics(collisionMargin=...) reaches only one piece of a compound, so pieces are shrunk instead)
 CHECK_INTERVAL = 0.01  # s between contact checks while shaking (MuJoCo's: every 10 steps of 2 ms)
 CLOSE_TIMEOUT = 1.5  # s
 STOPPED_SPEED = 0.002  # m/s: a jaw slower than this has stopped
+TORSIONAL = 0.005  # m, torsional friction of the contacts (MuJoCo's models: pads and objects 0.005 m)
 TOUCH = 0.0005  # m: a manifold point closer than this is a touch (Bullet keeps points up to 2 cm apart)
 HOLD_FORCE = 2000.0  # N, the fixed constraint that carries the hand along its trajectory
 
@@ -128,7 +134,8 @@ class BulletAcronym:
     """The ``acronym`` protocol in Bullet for one object; one instance per worker process (its own client)."""
 
     def __init__(self, parts, mass: float, com: np.ndarray, inertia: np.ndarray, friction: float, *,
-                 timestep: float = TIMESTEP, iterations: int = SOLVER_ITERATIONS, inflate: float = 0.0) -> None:
+                 timestep: float = TIMESTEP, iterations: int = SOLVER_ITERATIONS, inflate: float = 0.0,
+                 torsional: float = TORSIONAL) -> None:
         import pybullet as pb
         from pybullet_utils.bullet_client import BulletClient
         self.pb = pb
@@ -159,7 +166,10 @@ class BulletAcronym:
         obj_link = _link("object", mass, com, axes, moments, self._collisions([v for v, _ in parts], inflate))
         self.obj = c.loadURDF(self._urdf("object", f"<robot name='object'>{obj_link}</robot>"),
                               flags=pb.URDF_USE_INERTIA_FROM_FILE)
-        c.changeDynamics(self.obj, -1, lateralFriction=friction, spinningFriction=0.0, rollingFriction=0.0,
+        # Bullet combines friction as a product and torsional friction as spinning_a * friction_b + spinning_b *
+        # friction_a: the gripper's sliding 1.0 and spinning 0 leave the object's values, MuJoCo's models' (sliding
+        # from the file, torsional 0.005 m on pads and objects, graspgen.sim.grippers).
+        c.changeDynamics(self.obj, -1, lateralFriction=friction, spinningFriction=torsional, rollingFriction=0.0,
                          linearDamping=0.0, angularDamping=0.0)
 
         # Gripper: the hand (base, hand frame), per side a prismatic finger carrying its link and pad pieces; the
@@ -184,6 +194,10 @@ class BulletAcronym:
         for link in (-1, 0, 1):
             c.changeDynamics(self.gripper, link, lateralFriction=1.0, spinningFriction=0.0, rollingFriction=0.0,
                              linearDamping=0.0, angularDamping=0.0)
+        # The Panda's fingers are geared together (one motor, a rack): the jaws move symmetrically, as MuJoCo's model
+        # couples them; uncoupled, the pair drifts sideways under two equal motors.
+        gear = c.createConstraint(self.gripper, 0, self.gripper, 1, pb.JOINT_GEAR, [1, 0, 0], [0, 0, 0], [0, 0, 0])
+        c.changeConstraint(gear, gearRatio=-1.0, maxForce=10.0 * self.grip_force, erp=0.2)
         self.hold = c.createConstraint(self.gripper, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], [0, 0, 0], [0, 0, 0])
         c.changeConstraint(self.hold, maxForce=HOLD_FORCE)
 
@@ -297,7 +311,8 @@ def bullet_labels(case, args) -> tuple[list[dict], dict]:
                   "friction": obj.friction}
     T = world.T_world
     chunks = np.array_split(np.arange(len(T)), max(1, args.jobs) * 4)
-    settings = {"timestep": args.timestep, "iterations": args.iterations, "inflate": args.inflate}
+    settings = {"timestep": args.timestep, "iterations": args.iterations, "inflate": args.inflate,
+                "torsional": args.torsional}
     out = Parallel(n_jobs=args.jobs)(delayed(_run_chunk)(world_args, T[idx], settings) for idx in chunks if len(idx))
     thin = sum(shrunk_hull(v, MARGIN)[1] < MARGIN - 1e-9 for v, _ in obj.convex_parts)
     return [r for chunk in out for r in chunk], {"mass": obj.mass, "parts": len(obj.convex_parts),
@@ -327,6 +342,7 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=SOLVER_ITERATIONS, help="Bullet's solver iterations")
     ap.add_argument("--inflate", type=float, default=0.0,
                     help="make the object's pieces act this much (m) fatter (a what-if: FleX's margins are unknown)")
+    ap.add_argument("--torsional", type=float, default=TORSIONAL, help="torsional friction of the contacts (m)")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     try:
@@ -388,7 +404,7 @@ def main() -> None:
     import pybullet as pb
     args.out.write_text(json.dumps({
         "limit": args.limit, "timestep": args.timestep, "solver_iterations": args.iterations, "margin": MARGIN,
-        "inflate": args.inflate,
+        "inflate": args.inflate, "torsional": args.torsional,
         "pybullet_api": pb.getAPIVersion(), "machine": platform.platform(), "objects": rows, "pooled": summary,
         "three_way": three, "strata": strata, "seconds": time.perf_counter() - t_all,
         "codes": {"mujoco": [int(x) for x in P["mcode"]], "bullet": [int(x) for x in P["bcode"]],
