@@ -31,13 +31,17 @@ grasps and 2% of 100 example-mug grasps (2 ms with 200: 0% and 5%).
 
 Needs ``pybullet`` (``pip install -e '.[reference]'``); it is not a dependency of the package.
 
-Run: ``python bench/second_reference.py [-j 2] [--limit N] [--calibration DIR]``; writes
+``--impratio 1,...`` also labels the grasps with MuJoCo at other friction-to-normal impedance ratios (ours is 10,
+:class:`graspgen.sim.grippers.PhysicsOptions`) and compares those labels with FleX's and Bullet's.
+
+Run: ``python bench/second_reference.py [-j 2] [--limit N] [--impratio 1] [--calibration DIR]``; writes
 ``bench/results_second_reference.json`` (gitignored).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import os
@@ -319,8 +323,12 @@ def bullet_labels(case, args) -> tuple[list[dict], dict]:
                                                  "parts_thinner_than_two_margins": int(thin)}
 
 
-def mujoco_labels(case, args):
+def mujoco_labels(case, args, impratio: float | None = None):
+    """Our outcome codes and closed widths of the case's grasps (``gen evaluate --protocol acronym``); ``impratio``
+    replaces the protocol's MuJoCo friction-to-normal impedance ratio (default 10)."""
     lift = LiftParams(protocol="acronym")
+    if impratio is not None:
+        lift = dataclasses.replace(lift, impratio=impratio)
     params = EvaluateParams(lift=lift, friction=case.friction, mass=case.mass,
                             density=case.density if case.density is not None else 700.0)
     table = evaluate_grasps(case.mesh, case.scale, case.T, None, "panda", params, jobs=args.jobs,
@@ -343,6 +351,8 @@ def main() -> None:
     ap.add_argument("--inflate", type=float, default=0.0,
                     help="make the object's pieces act this much (m) fatter (a what-if: FleX's margins are unknown)")
     ap.add_argument("--torsional", type=float, default=TORSIONAL, help="torsional friction of the contacts (m)")
+    ap.add_argument("--impratio", type=str, default="",
+                    help="also label with MuJoCo at these impratio values (comma-separated) and compare them too")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     try:
@@ -352,6 +362,8 @@ def main() -> None:
 
     cases = load_cases(args.calibration, args.limit)
     rows, pooled = [], {"flex": [], "mujoco": [], "bullet": [], "width": [], "mcode": [], "bcode": []}
+    variants = [float(x) for x in args.impratio.split(",") if x.strip()]
+    pooled_variants = {v: [] for v in variants}
     t_all = time.perf_counter()
     for case in cases:
         t0 = time.perf_counter()
@@ -368,6 +380,14 @@ def main() -> None:
                "bullet_codes": {OUTCOME_NAMES[k]: int(np.sum(bcodes == k)) for k in (1, 3, 4, 5)},
                "seconds_mujoco": t1 - t0, "seconds_bullet": t2 - t1, "bullet_rollouts_per_s": len(flex) / (t2 - t1),
                **info}
+        for v in variants:
+            vm = mujoco_labels(case, args, v)[0] == 5
+            pooled_variants[v].append(vm)
+            row[f"mujoco_impratio_{v:g}"] = {"success": float(vm.mean()), "vs_flex": pairwise(vm, flex),
+                                             "vs_bullet": pairwise(vm, bt)}
+            print(f"{case.name:18s} MuJoCo with impratio {v:g}: success {vm.mean():.3f}, agreement (kappa) with "
+                  f"FleX {np.mean(vm == flex):.3f} ({kappa(vm, flex):.2f}), with Bullet {np.mean(vm == bt):.3f} "
+                  f"({kappa(vm, bt):.2f})", flush=True)
         rows.append(row)
         for k, v in (("flex", flex), ("mujoco", mj), ("bullet", bt), ("width", widths), ("mcode", mcodes),
                      ("bcode", bcodes)):
@@ -395,6 +415,12 @@ def main() -> None:
                 "n": int(m.sum()), "flex_held": float(flex[m].mean()), "bullet_held": float(bt[m].mean())}
     print(f"\npooled ({len(flex)} grasps): " + "; ".join(
         f"{k} {v['agreement']:.3f} (kappa {v['kappa']:.2f})" for k, v in summary.items()))
+    for v, parts in pooled_variants.items():
+        vm = np.concatenate(parts)
+        summary[f"mujoco_impratio_{v:g}_vs_flex"] = pairwise(vm, flex)
+        summary[f"mujoco_impratio_{v:g}_vs_bullet"] = pairwise(vm, bt)
+        print(f"MuJoCo with impratio {v:g}: agreement (kappa) with FleX {np.mean(vm == flex):.3f} "
+              f"({kappa(vm, flex):.2f}), with Bullet {np.mean(vm == bt):.3f} ({kappa(vm, bt):.2f})")
     print("three-way (ours, Bullet) -> FleX held / lost:")
     for k, v in three.items():
         print(f"  {k:28s} {v['flex_held']:5d} / {v['flex_lost']:5d}")
