@@ -135,11 +135,7 @@ class BulletAcronym:
         from pybullet_utils.bullet_client import BulletClient
         self.pb = pb
         self.c = BulletClient(connection_mode=pb.DIRECT)
-        c = self.c
-        self.dt = timestep
-        c.setPhysicsEngineParameter(fixedTimeStep=timestep, numSolverIterations=iterations,
-                                    enableConeFriction=1, deterministicOverlappingPairs=1)
-        c.setGravity(0, 0, 0)
+        self.dt, self.iterations, self.friction, self.torsional = timestep, iterations, friction, torsional
         gripper = load_gripper("panda")
         self.grip_force = float(gripper.force_limit)
         self.finger_speed = float(gripper.closing_speed) / 2.0
@@ -159,13 +155,7 @@ class BulletAcronym:
         # Bullet places a body by its inertial frame: at rest in the mesh frame that is (com, principal axes).
         self.obj_rest = (np.asarray(com, float).tolist(), _quat_xyzw(axes))
         obj_link = _link("object", mass, com, axes, moments, self._collisions([v for v, _ in parts], inflate))
-        self.obj = c.loadURDF(self._urdf("object", f"<robot name='object'>{obj_link}</robot>"),
-                              flags=pb.URDF_USE_INERTIA_FROM_FILE)
-        # Bullet combines friction as a product and torsional friction as spinning_a * friction_b + spinning_b *
-        # friction_a: the gripper's sliding 1.0 and spinning 0 leave the object's values, MuJoCo's models' (sliding
-        # from the file, torsional 0.005 m on pads and objects, graspgen.sim.grippers).
-        c.changeDynamics(self.obj, -1, lateralFriction=friction, spinningFriction=torsional, rollingFriction=0.0,
-                         linearDamping=0.0, angularDamping=0.0)
+        self.obj_urdf = self._urdf("object", f"<robot name='object'>{obj_link}</robot>")
 
         # Gripper: the hand (base, hand frame), per side a prismatic finger carrying its link and pad pieces; the
         # left one is the right one turned 180 deg about z. Joint q = 0 open, q = stroke closed.
@@ -183,9 +173,26 @@ class BulletAcronym:
                           f"<axis xyz='{axis}'/><limit lower='0' upper='{self.stroke:.6f}' "
                           f"effort='{self.grip_force:g}' velocity='1'/></joint>")
         text = "<robot name='panda'>\n" + "\n".join(links + joints) + "\n</robot>"
-        self.gripper = c.loadURDF(self._urdf("panda", text), flags=pb.URDF_USE_INERTIA_FROM_FILE)
+        self.gripper_urdf = self._urdf("panda", text)
         self.jaws = (0, 1)
         self.sides = ({0}, {1})
+
+    def _build(self) -> None:
+        """A new world with the object and the hand at rest. Every rollout starts in one: in a world reused with its
+        bodies reset (even through saveState / restoreState), the contact cache and warm starts a rollout leaves
+        change the next one's label (3 of 120 grasps, measured)."""
+        c, pb = self.c, self.pb
+        c.resetSimulation()
+        c.setPhysicsEngineParameter(fixedTimeStep=self.dt, numSolverIterations=self.iterations,
+                                    enableConeFriction=1, deterministicOverlappingPairs=1)
+        c.setGravity(0, 0, 0)
+        self.obj = c.loadURDF(self.obj_urdf, *self.obj_rest, flags=pb.URDF_USE_INERTIA_FROM_FILE)
+        # Bullet combines friction as a product and torsional friction as spinning_a * friction_b + spinning_b *
+        # friction_a: the gripper's sliding 1.0 and spinning 0 leave the object's values, MuJoCo's models' (sliding
+        # from the file, torsional 0.005 m on pads and objects, graspgen.sim.grippers).
+        c.changeDynamics(self.obj, -1, lateralFriction=self.friction, spinningFriction=self.torsional,
+                         rollingFriction=0.0, linearDamping=0.0, angularDamping=0.0)
+        self.gripper = c.loadURDF(self.gripper_urdf, flags=pb.URDF_USE_INERTIA_FROM_FILE)
         for link in (-1, 0, 1):
             c.changeDynamics(self.gripper, link, lateralFriction=1.0, spinningFriction=0.0, rollingFriction=0.0,
                              linearDamping=0.0, angularDamping=0.0)
@@ -195,9 +202,6 @@ class BulletAcronym:
         c.changeConstraint(gear, gearRatio=-1.0, maxForce=10.0 * self.grip_force, erp=0.2)
         self.hold = c.createConstraint(self.gripper, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], [0, 0, 0], [0, 0, 0])
         c.changeConstraint(self.hold, maxForce=HOLD_FORCE)
-        # Every rollout starts from this state (bodies, joints, constraints and the contact cache): without it the
-        # manifolds and warm starts a rollout leaves behind change the next one's label (2.5% of them, measured).
-        self._fresh = c.saveState()
 
     # -- helpers ---------------------------------------------------------------------------------------------------
 
@@ -240,8 +244,7 @@ class BulletAcronym:
     def rollout(self, T_tcp: np.ndarray) -> dict:
         """One grasp (TCP pose in the object's mesh frame, which is the world here); returns its code and motion."""
         c, pb = self.c, self.pb
-        c.restoreState(stateId=self._fresh)
-        c.setGravity(0, 0, 0)
+        self._build()
         c.resetBasePositionAndOrientation(self.obj, *self.obj_rest)
         c.resetBaseVelocity(self.obj, [0, 0, 0], [0, 0, 0])
         pos, orn = self._hand_pose(T_tcp)
