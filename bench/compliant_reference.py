@@ -29,8 +29,8 @@ rigid (``--compliant-object`` makes them compliant with the same modulus); ``--d
 Hunt-Crossley dissipation. The hydroelastic modulus is not Young's modulus: a compliant convex piece's pressure rises
 from 0 at its surface to ``E`` at its deepest point, so ``E`` is roughly Young's modulus for a piece whose depth is
 its size. The Panda's fingers are hard plastic (Young's modulus ~2 GPa): the default ``E`` = 1e9 Pa. Softer values
-are what-ifs (1e7: rubber-like pads, which sink millimetres into a thin edge under 70 N: on the hat, jaws then close
-~10 mm further than in MuJoCo and hold grasps both rigid engines lose). Compliant thin object pieces (a hat brim, a
+are what-ifs (1e7: rubber-like pads, sinking millimetres into a thin edge under 70 N; with the hat's pieces compliant
+too, the jaws closed 10 mm further than in MuJoCo on one of its grasps). Compliant thin object pieces (a hat brim, a
 knife blade, a mug wall) let a finger sink through half their thickness, which is why objects are rigid by default.
 
 Needs ``drake`` (``pip install -e '.[reference]'``; not a dependency of the package). Run: ``python
@@ -39,7 +39,8 @@ mug,hat] [--results bench/results_second_reference.json]``; writes ``bench/resul
 (gitignored). Grasps: ``--limit N`` evenly spaced per object (as the other benches: ``fidelity.subset``), or all of
 them; the agreements are over these. ``--disputed M`` adds, per object, M evenly spaced among the other grasps on which
 MuJoCo and Bullet agree and FleX differs, and M on which MuJoCo and Bullet differ; for those only who Drake sides with
-is counted. Speed: ~1 rollout/s per core on the bottle (2 pieces), 0.1-0.2 on the 100-128-piece objects.
+is counted. Speed (rigid object pieces): 1.5 rollouts/s per core on the bottle (2 pieces), 0.2-0.7 on the
+100-128-piece objects; compliant object pieces are 2-4 times slower.
 """
 
 from __future__ import annotations
