@@ -61,11 +61,10 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 from fidelity import CALIBRATION, kappa, load_cases, subset  # noqa: E402
-from second_reference import PANDA, _pieces  # noqa: E402
+from second_reference import PANDA, _pieces, acronym_world  # noqa: E402
 
-from graspgen.evaluate import EvaluateParams, evaluation_world  # noqa: E402
 from graspgen.sim.grippers import load_gripper  # noqa: E402
-from graspgen.sim.lift import AcronymParams, LiftParams, _shake_wave  # noqa: E402
+from graspgen.sim.lift import AcronymParams, _shake_wave  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results_compliant_reference.json"
 SECOND = ROOT / "bench" / "results_second_reference.json"
@@ -286,15 +285,8 @@ def _run_chunk(world_args: dict, T: np.ndarray, settings: dict) -> list[dict]:
 
 
 def drake_labels(case, idx: np.ndarray, args) -> list[dict]:
-    params = EvaluateParams(lift=LiftParams(protocol="acronym"), friction=case.friction, mass=case.mass,
-                            density=case.density if case.density is not None else 700.0)
-    world = evaluation_world(case.mesh, case.scale, case.T[idx], None, "panda", params, protocol="acronym",
-                             cache_dir=args.cache_dir)
-    obj = world.world.obj
-    world_args = {"parts": [(np.asarray(v), np.asarray(f)) for v, f in obj.convex_parts], "mass": obj.mass,
-                  "com": np.asarray(obj.center_of_mass), "inertia": np.asarray(obj.inertia),
-                  "friction": obj.friction}
-    T = world.T_world
+    """Drake's outcome of the case's grasps ``idx``."""
+    world_args, T = acronym_world(case, case.T[idx], args.cache_dir)
     chunks = np.array_split(np.arange(len(T)), max(1, args.jobs) * 2)
     settings = {"timestep": args.timestep, "modulus": args.modulus, "dissipation": args.dissipation,
                 "compliant_object": args.compliant_object}

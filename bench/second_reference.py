@@ -299,24 +299,30 @@ def _run_chunk(world_args: dict, T: np.ndarray, settings: dict) -> list[dict]:
     return [sim.rollout(t) for t in T]
 
 
-def bullet_labels(case, args) -> tuple[list[dict], dict]:
-    """Bullet's outcome of each of the case's grasps."""
-    lift = LiftParams(protocol="acronym")
-    params = EvaluateParams(lift=lift, friction=case.friction, mass=case.mass,
+def acronym_world(case, T: np.ndarray, cache_dir: Path) -> tuple[dict, np.ndarray]:
+    """What ``gen evaluate --protocol acronym`` simulates for the case's grasps ``T`` ``(n, 4, 4)``: the object as
+    keyword arguments of another engine's world (``parts``: the evaluation's convex pieces, ``mass``, ``com``,
+    ``inertia`` about it, ``friction``; mesh frame, m, kg) and the TCP poses in that frame ``(n, 4, 4)``."""
+    params = EvaluateParams(lift=LiftParams(protocol="acronym"), friction=case.friction, mass=case.mass,
                             density=case.density if case.density is not None else 700.0)
-    world = evaluation_world(case.mesh, case.scale, case.T, None, "panda", params, protocol="acronym",
-                             cache_dir=args.cache_dir)
+    world = evaluation_world(case.mesh, case.scale, T, None, "panda", params, protocol="acronym",
+                             cache_dir=cache_dir)
     obj = world.world.obj
     world_args = {"parts": [(np.asarray(v), np.asarray(f)) for v, f in obj.convex_parts], "mass": obj.mass,
                   "com": np.asarray(obj.center_of_mass), "inertia": np.asarray(obj.inertia),
                   "friction": obj.friction}
-    T = world.T_world
+    return world_args, world.T_world
+
+
+def bullet_labels(case, args) -> tuple[list[dict], dict]:
+    """Bullet's outcome of each of the case's grasps."""
+    world_args, T = acronym_world(case, case.T, args.cache_dir)
     chunks = np.array_split(np.arange(len(T)), max(1, args.jobs) * 4)
     settings = {"timestep": args.timestep, "iterations": args.iterations, "inflate": args.inflate,
                 "torsional": args.torsional}
     out = Parallel(n_jobs=args.jobs)(delayed(_run_chunk)(world_args, T[idx], settings) for idx in chunks if len(idx))
-    thin = sum(shrunk_hull(v, MARGIN)[1] < MARGIN - 1e-9 for v, _ in obj.convex_parts)
-    return [r for chunk in out for r in chunk], {"mass": obj.mass, "parts": len(obj.convex_parts),
+    thin = sum(shrunk_hull(v, MARGIN)[1] < MARGIN - 1e-9 for v, _ in world_args["parts"])
+    return [r for chunk in out for r in chunk], {"mass": world_args["mass"], "parts": len(world_args["parts"]),
                                                  "parts_thinner_than_two_margins": int(thin)}
 
 
