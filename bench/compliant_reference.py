@@ -39,7 +39,7 @@ mug,hat] [--results bench/results_second_reference.json]``; writes ``bench/resul
 (gitignored). Grasps: ``--limit N`` evenly spaced per object (as the other benches: ``fidelity.subset``), or all of
 them; the agreements are over these. ``--disputed M`` adds, per object, M evenly spaced among the other grasps on which
 MuJoCo and Bullet agree and FleX differs, and M on which MuJoCo and Bullet differ; for those only who Drake sides with
-is counted. Speed (rigid object pieces): 1.5 rollouts/s per core on the bottle (2 pieces), 0.2-0.7 on the
+is counted. Speed (rigid object pieces): 1.8 rollouts/s per core on the bottle (2 pieces), 0.3-0.8 on the
 100-128-piece objects; compliant object pieces are 2-4 times slower.
 """
 
