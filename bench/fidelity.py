@@ -139,6 +139,23 @@ def kappa(ours: np.ndarray, theirs: np.ndarray) -> float:
     return (po - pe) / (1.0 - pe) if pe < 1.0 else math.nan
 
 
+def kappa_interval(ours: np.ndarray, theirs: np.ndarray, groups: np.ndarray, resamples: int = 2000,
+                   seed: int = 0, level: float = 0.95) -> dict:
+    """Bootstrap interval of Cohen's kappa and of the agreement of two binary label vectors ``(n,)``: the grasps are
+    resampled with replacement within each group (object), so every resample keeps each object's share; percentile
+    interval at ``level``, draws from ``numpy.random.default_rng(seed)``."""
+    ours, theirs, groups = np.asarray(ours, bool), np.asarray(theirs, bool), np.asarray(groups)
+    rng = np.random.default_rng(seed)
+    members = [np.flatnonzero(groups == g) for g in np.unique(groups)]
+    kappas, agreements = np.empty(resamples), np.empty(resamples)
+    for r in range(resamples):
+        idx = np.concatenate([rng.choice(m, size=len(m)) for m in members])
+        kappas[r], agreements[r] = kappa(ours[idx], theirs[idx]), np.mean(ours[idx] == theirs[idx])
+    q = [100 * (1 - level) / 2, 100 * (1 + level) / 2]
+    return {"kappa": [float(x) for x in np.nanpercentile(kappas, q)],
+            "agreement": [float(x) for x in np.percentile(agreements, q)], "level": level, "resamples": resamples}
+
+
 def auc(scores: np.ndarray, positive: np.ndarray) -> float:
     """Probability that a random positive scores above a random negative (ties count half); NaN without both."""
     scores, positive = np.asarray(scores, float), np.asarray(positive, bool)

@@ -4,8 +4,9 @@
 simulator may be the one that is off: FleX's code and settings were never published, and ours are choices too. This
 script asks a third, independent rigid-body engine, Bullet (``pybullet``: GJK/EPA contact manifolds of up to four
 points per pair of convex pieces, a sequential-impulse LCP solver, a Coulomb friction cone), to run the same
-``acronym`` protocol on the same grasps with the same geometry, and prints the three pairwise agreements, the
-agreement in the strata where MuJoCo and FleX disagree most (the grasps' closed width), and the three-way confusion.
+``acronym`` protocol on the same grasps with the same geometry, and prints the three pairwise agreements (pooled with
+95% bootstrap intervals, the grasps resampled within each object: ``fidelity.kappa_interval``), the agreement in the
+strata where MuJoCo and FleX disagree most (the grasps' closed width), and the three-way confusion.
 
 What is the same as ``gen evaluate --protocol acronym`` (:class:`graspgen.sim.lift.AcronymParams`): the object
 (the evaluation's CoACD parts, mass, centre of mass and inertia from :func:`graspgen.evaluate.evaluation_world`,
@@ -35,7 +36,8 @@ Needs ``pybullet`` (``pip install -e '.[reference]'``); it is not a dependency o
 :class:`graspgen.sim.grippers.PhysicsOptions`) and compares those labels with FleX's and Bullet's.
 
 Run: ``python bench/second_reference.py [-j 2] [--limit N] [--impratio 1] [--calibration DIR]``; writes
-``bench/results_second_reference.json`` (gitignored).
+``bench/results_second_reference.json`` (gitignored). ``--from-results FILE`` prints a saved run's per-object and
+pooled figures again (with the intervals) without simulating.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from fidelity import kappa, load_cases  # noqa: E402
+from fidelity import kappa, kappa_interval, load_cases  # noqa: E402
 
 from graspgen.evaluate import EvaluateParams, evaluate_grasps, evaluation_world  # noqa: E402
 from graspgen.sim.grippers import load_gripper  # noqa: E402
@@ -343,6 +345,48 @@ def pairwise(a: np.ndarray, b: np.ndarray) -> dict:
     return {"agreement": float(np.mean(a == b)), "kappa": float(kappa(a, b))}
 
 
+def pooled_summary(flex: np.ndarray, mj: np.ndarray, bt: np.ndarray, groups: np.ndarray) -> tuple[dict, dict]:
+    """The three pairwise agreements and kappas of the held labels ``(n,) bool`` with their bootstrap intervals
+    (grasps resampled within each object, ``groups`` ``(n,)``), and the three-way confusion (MuJoCo, Bullet) -> FleX
+    held / lost."""
+    summary = {}
+    for name, (a, b) in {"mujoco_vs_flex": (mj, flex), "bullet_vs_flex": (bt, flex),
+                         "mujoco_vs_bullet": (mj, bt)}.items():
+        summary[name] = {**pairwise(a, b), "interval": kappa_interval(a, b, groups)}
+    three = {f"mujoco {'held' if a else 'lost'}, bullet {'held' if b else 'lost'}":
+             {"flex_held": int(np.sum((mj == a) & (bt == b) & flex)), "flex_lost": int(np.sum((mj == a) & (bt == b)
+                                                                                              & ~flex))}
+             for a in (True, False) for b in (True, False)}
+    return summary, three
+
+
+def print_pooled(summary: dict, three: dict, n: int) -> None:
+    print(f"\npooled ({n} grasps; 95% bootstrap intervals over the grasps within each object):")
+    for k, v in summary.items():
+        iv = v["interval"]
+        print(f"  {k:18s} agreement {v['agreement']:.3f} [{iv['agreement'][0]:.3f}, {iv['agreement'][1]:.3f}]  "
+              f"kappa {v['kappa']:.2f} [{iv['kappa'][0]:.2f}, {iv['kappa'][1]:.2f}]")
+    print("three-way (ours, Bullet) -> FleX held / lost:")
+    for k, v in three.items():
+        print(f"  {k:28s} {v['flex_held']:5d} / {v['flex_lost']:5d}")
+
+
+def summarise_saved(path: Path) -> None:
+    """Print the pooled figures of a saved run (``--from-results``) without simulating anything."""
+    saved = json.loads(path.read_text())
+    codes = {k: np.asarray(v) for k, v in saved["codes"].items()}
+    rows = saved["objects"]
+    groups = np.repeat(np.arange(len(rows)), [r["n"] for r in rows])
+    if len(groups) != len(codes["flex"]):
+        raise SystemExit(f"{path}: {len(codes['flex'])} labels but the objects list {len(groups)} grasps")
+    for row in rows:
+        pairs = " ".join(f"{k.replace('_vs_', '-')} {row[k]['agreement']:.3f} ({row[k]['kappa']:.2f})"
+                         for k in ("mujoco_vs_flex", "bullet_vs_flex", "mujoco_vs_bullet"))
+        print(f"{row['object']:18s} n {row['n']}  agreement (kappa) {pairs}")
+    summary, three = pooled_summary(codes["flex"] == 1, codes["mujoco"] == SUCCESS, codes["bullet"] == SUCCESS, groups)
+    print_pooled(summary, three, len(groups))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-j", "--jobs", type=int, default=1)
@@ -357,7 +401,12 @@ def main() -> None:
     ap.add_argument("--impratio", type=str, default="",
                     help="also label with MuJoCo at these impratio values (comma-separated) and compare them too")
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--from-results", type=Path, default=None,
+                    help="print the pooled figures (with bootstrap intervals) of a saved run and stop")
     args = ap.parse_args()
+    if args.from_results is not None:
+        summarise_saved(args.from_results)
+        return
     try:
         import pybullet  # noqa: F401
     except ImportError:
@@ -403,30 +452,21 @@ def main() -> None:
               f"{row['bullet_rollouts_per_s']:.1f} rollouts/s", flush=True)
     P = {k: np.concatenate(v) for k, v in pooled.items()}
     flex, mj, bt = P["flex"], P["mujoco"], P["bullet"]
-    summary = {"mujoco_vs_flex": pairwise(mj, flex), "bullet_vs_flex": pairwise(bt, flex),
-               "mujoco_vs_bullet": pairwise(mj, bt)}
-    # three-way confusion: (mujoco, bullet) -> FleX held / lost
-    three = {f"mujoco {'held' if a else 'lost'}, bullet {'held' if b else 'lost'}":
-             {"flex_held": int(np.sum((mj == a) & (bt == b) & flex)), "flex_lost": int(np.sum((mj == a) & (bt == b)
-                                                                                              & ~flex))}
-             for a in (True, False) for b in (True, False)}
+    groups = np.repeat(np.arange(len(rows)), [r["n"] for r in rows])
+    summary, three = pooled_summary(flex, mj, bt, groups)
     strata = {}
     for lo, hi in ((0.0, 0.02), (0.02, 0.06), (0.06, 0.09)):
         m = (P["width"] >= lo) & (P["width"] < hi) & mj
         if m.any():
             strata[f"mujoco successes, closed width {lo * 1000:.0f}-{hi * 1000:.0f} mm"] = {
                 "n": int(m.sum()), "flex_held": float(flex[m].mean()), "bullet_held": float(bt[m].mean())}
-    print(f"\npooled ({len(flex)} grasps): " + "; ".join(
-        f"{k} {v['agreement']:.3f} (kappa {v['kappa']:.2f})" for k, v in summary.items()))
+    print_pooled(summary, three, len(flex))
     for v, parts in pooled_variants.items():
         vm = np.concatenate(parts)
         summary[f"mujoco_impratio_{v:g}_vs_flex"] = pairwise(vm, flex)
         summary[f"mujoco_impratio_{v:g}_vs_bullet"] = pairwise(vm, bt)
         print(f"MuJoCo with impratio {v:g}: agreement (kappa) with FleX {np.mean(vm == flex):.3f} "
               f"({kappa(vm, flex):.2f}), with Bullet {np.mean(vm == bt):.3f} ({kappa(vm, bt):.2f})")
-    print("three-way (ours, Bullet) -> FleX held / lost:")
-    for k, v in three.items():
-        print(f"  {k:28s} {v['flex_held']:5d} / {v['flex_lost']:5d}")
     print("strata of our successes by closed width: FleX and Bullet hold")
     for k, v in strata.items():
         print(f"  {k:45s} n {v['n']:5d}  FleX {v['flex_held']:.2f}  Bullet {v['bullet_held']:.2f}")
