@@ -244,6 +244,7 @@ def pooled(rows: list[dict]) -> dict:
     ours = codes == 5
     out = {
         "object": "pooled", "n": int(len(codes)), "agreement": float(np.mean(ours == flex)), "kappa": kappa(ours, flex),
+        "interval": kappa_interval(ours, flex, np.repeat(np.arange(len(rows)), [r["n"] for r in rows])),
         "our_success": float(np.mean(ours)), "flex_success": float(np.mean(flex)),
         "confusion": {OUTCOME_NAMES[c]: [int(np.sum((codes == c) & flex)), int(np.sum((codes == c) & ~flex))]
                       for c in range(6)},
@@ -386,6 +387,10 @@ def print_protocol(label: str, result: dict, robust: bool) -> None:
     if not robust:
         print("\nAUC robustness: not computed (run with --robustness N: N perturbed rollouts per success).")
     p = result["pooled"]
+    iv = p["interval"]
+    print(f"\npooled 95% bootstrap intervals (grasps resampled within each object): agreement "
+          f"{fmt(iv['agreement'][0])}-{fmt(iv['agreement'][1])}, "
+          f"kappa {fmt(iv['kappa'][0], 2)}-{fmt(iv['kappa'][1], 2)}")
     print(f"\npooled AUC epsilon: {fmt(p['auc_epsilon'], 2)} (mean of per-object AUCs {fmt(p['auc_epsilon_mean'], 2)})"
           + (f"; robustness: {fmt(p['auc_robustness'], 2)} (mean {fmt(p['auc_robustness_mean'], 2)}); grip "
              f"robustness: {fmt(p['auc_grip_robustness'], 2)} (mean {fmt(p['auc_grip_robustness_mean'], 2)})"
