@@ -379,11 +379,17 @@ def summarise_saved(path: Path) -> None:
     groups = np.repeat(np.arange(len(rows)), [r["n"] for r in rows])
     if len(groups) != len(codes["flex"]):
         raise SystemExit(f"{path}: {len(codes['flex'])} labels but the objects list {len(groups)} grasps")
-    for row in rows:
-        pairs = " ".join(f"{k.replace('_vs_', '-')} {row[k]['agreement']:.3f} ({row[k]['kappa']:.2f})"
-                         for k in ("mujoco_vs_flex", "bullet_vs_flex", "mujoco_vs_bullet"))
-        print(f"{row['object']:18s} n {row['n']}  agreement (kappa) {pairs}")
-    summary, three = pooled_summary(codes["flex"] == 1, codes["mujoco"] == SUCCESS, codes["bullet"] == SUCCESS, groups)
+    held = {"flex": codes["flex"] == 1, "mujoco": codes["mujoco"] == SUCCESS, "bullet": codes["bullet"] == SUCCESS}
+    print("per object: agreement [95% bootstrap interval] (kappa)")
+    for i, row in enumerate(rows):
+        mine = groups == i
+        cells = []
+        for a, b in (("mujoco", "flex"), ("bullet", "flex"), ("mujoco", "bullet")):
+            iv = kappa_interval(held[a][mine], held[b][mine], groups[mine])["agreement"]
+            cells.append(f"{a}-{b} {np.mean(held[a][mine] == held[b][mine]):.3f} [{iv[0]:.3f}, {iv[1]:.3f}] "
+                         f"({kappa(held[a][mine], held[b][mine]):.2f})")
+        print(f"  {row['object']:18s} n {row['n']}  " + "  ".join(cells))
+    summary, three = pooled_summary(held["flex"], held["mujoco"], held["bullet"], groups)
     print_pooled(summary, three, len(groups))
 
 
