@@ -6,6 +6,9 @@ CONFIG ?= configs/default.yaml
 OUT    ?= out
 JOBS   ?= 0
 STAMP  := $(VENV)/.installed
+# torch's CPU build, installed before the `learn` extra so that extra adds nothing heavy (a plain `torch` from the
+# registry is a multi-GB CUDA build). With a GPU: install your torch first and run `make setup TORCH=` (skips it).
+TORCH  ?= torch==2.13.0
 
 .DEFAULT_GOAL := help
 .PHONY: help setup dataset test bench repro lint clean
@@ -19,7 +22,8 @@ setup: $(STAMP) ## Create .venv and install the package with its test tools
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev,dask]'
+	$(if $(TORCH),$(BIN)/pip install --quiet $(TORCH))
+	$(BIN)/pip install --quiet -e '.[dev,dask,learn]'
 	@touch $(STAMP)
 
 dataset: $(STAMP) ## Run every stage of CONFIG into OUT (finished work is skipped)

@@ -24,6 +24,14 @@ placement or approach; skipped with a note otherwise: it costs N rollouts per su
 the object during closing and shaking, ours against FleX's (ACRONYM's ``object_motion_during_*``), for the grasps
 both call held.
 
+Two labels of ours are compared with FleX's ``object_in_gripper``: **held** (outcome 5: the object still between the
+fingers after the protocol's disturbance, the label ACRONYM's files carry) and **firm** (held, and the object's
+largest motion in the hand over the disturbance within ``LiftParams.firm_translation`` / ``firm_rotation``,
+:attr:`graspgen.sim.lift.RolloutResult.firm`). Both are reported pooled and per category (the ACRONYM file name's
+prefix: bottle, bowl, hat, knife, mug, scissors), with bootstrap 95% intervals (:func:`kappa_interval`, grasps
+resampled within each object), and the median largest rotation in the hand of our held grasps against FleX's
+``object_motion_during_shaking_angular`` of its held ones.
+
 ``--speed``: rollouts per second of each protocol run on the calibration mug in one process (one core), from the
 slope of two timed evaluations (300 and 10 grasps, so preparing the mesh and compiling the model do not count),
 best of 2.
@@ -40,8 +48,9 @@ scene, the Panda's data sheet, physical arguments) is written in :class:`graspge
 sweep only shows how much the agreement depends on each choice.
 
 Run: ``python bench/fidelity.py [-j 2] [--limit N] [--protocols table,acronym,graspgen] [--sweep] [--speed]
-[--robustness N] [--calibration DIR]``; writes ``bench/results_fidelity.json`` (gitignored). ``--limit N`` takes N
-evenly spaced grasps per object (quick runs); the default is all of them.
+[--robustness N] [--calibration DIR] [--out FILE]``; writes ``bench/results_fidelity.json`` (gitignored). ``--limit N``
+takes N evenly spaced grasps per object (quick runs); the default is all of them. The learning set
+(``--calibration /work/shared/learn/acronym --limit 100``: 100 grasps of each of its 69 files) is read the same way.
 """
 
 from __future__ import annotations
@@ -62,6 +71,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from graspgen.errors import InputError  # noqa: E402
 from graspgen.evaluate import METADATA_KEY, EvaluateParams, evaluate_grasps  # noqa: E402
 from graspgen.io.acronym import read_acronym  # noqa: E402
 from graspgen.quality.epsilon import grasp_epsilon  # noqa: E402
@@ -75,11 +85,16 @@ SPEED_OBJECT = "even_Mug_10f6e0"  # the calibration mug (ACRONYM's example)
 TORSIONAL = 0.005  # m, the pads' torsional friction (the epsilon's soft-finger floor, as metrics.epsilon)
 
 
+LABELS = ("held", "firm")
+"""Our labels compared with FleX's: held (outcome 5) and firm (:attr:`graspgen.sim.lift.RolloutResult.firm`)."""
+
+
 @dataclasses.dataclass
 class Case:
     """One calibration object: its grasps (TCP poses) and FleX's labels, subset by ``--limit``."""
 
     name: str
+    category: str
     path: Path
     mesh: Path
     scale: float
@@ -100,6 +115,12 @@ def object_name(path: Path) -> str:
     return f"{parts[0].lower()} {parts[1][:6]}" + (" (ex)" if example else "")
 
 
+def category(path: Path) -> str:
+    """The ACRONYM file name's prefix, lower case: ``Mug_1878...h5`` and ``even_Mug_10f6...h5`` -> ``mug``."""
+    parts = path.stem.split("_")
+    return (parts[1] if parts[0] == "even" and len(parts) > 1 else parts[0]).lower()
+
+
 def subset(n: int, limit: int | None) -> np.ndarray:
     """``limit`` evenly spaced indices of ``range(n)`` (all of them without a limit)."""
     if limit is None or limit >= n:
@@ -111,14 +132,24 @@ def load_cases(root: Path, limit: int | None) -> list[Case]:
     files = sorted(root.rglob("*.h5"))
     if not files:
         raise SystemExit(f"no ACRONYM files under {root} (set --calibration)")
-    cases = []
+    cases, names = [], set()
     for path in files:
-        acr = read_acronym(path)
+        try:
+            acr = read_acronym(path)
+        except InputError as exc:  # e.g. a quality that is not one value per grasp: say so, keep the others
+            print(f"  skipped: {exc}", file=sys.stderr)
+            continue
         idx = subset(len(acr), limit)
         q = acr.qualities
         motion = {k.removeprefix("flex/"): np.asarray(v)[idx] for k, v in q.items() if "object_motion" in k}
+        name = object_name(path)
+        k = 2
+        while name in names:  # one mesh at several scales (the learning set): keep the names apart
+            name = f"{object_name(path)} #{k}"
+            k += 1
+        names.add(name)
         cases.append(Case(
-            name=object_name(path), path=path, mesh=path.parent / acr.object_file, scale=acr.object_scale,
+            name=name, category=category(path), path=path, mesh=path.parent / acr.object_file, scale=acr.object_scale,
             mass=acr.object_mass, friction=acr.object_friction if acr.object_friction is not None else 1.0,
             density=acr.object_density, T=acr.tcp_poses()[idx], flex=np.asarray(acr.success)[idx].astype(int),
             flex_motion=motion,
@@ -213,8 +244,13 @@ def summarise(case: Case, table, lift: LiftParams, args) -> dict:
     confusion = {OUTCOME_NAMES[c]: [int(np.sum((codes == c) & flex)), int(np.sum((codes == c) & ~flex))]
                  for c in range(6)}
     eps = epsilons(table, case.friction)
+    firm = table.column("firm").to_numpy(zero_copy_only=False).astype(bool)
     row = {
-        "object": case.name, "n": int(len(codes)), "agreement": float(np.mean(ours == flex)),
+        "object": case.name, "category": case.category, "firm": firm.tolist(),
+        "max_rel_translation": table.column("max_rel_translation").to_numpy().tolist(),
+        "max_rel_rotation": table.column("max_rel_rotation").to_numpy().tolist(),
+        "firm_agreement": float(np.mean(firm == flex)), "firm_kappa": kappa(firm, flex),
+        "our_firm": float(np.mean(firm)), "n": int(len(codes)), "agreement": float(np.mean(ours == flex)),
         "kappa": kappa(ours, flex), "our_success": float(np.mean(ours)), "flex_success": float(np.mean(flex)),
         "confusion": confusion, "auc_epsilon": auc(eps[ours], flex[ours]),
         "codes": codes.tolist(), "flex": case.flex.tolist(), "epsilon": eps.tolist(),
@@ -261,14 +297,72 @@ def pooled(rows: list[dict]) -> dict:
     return out
 
 
+def ours(row: dict, label: str) -> np.ndarray:
+    """``(n,) bool`` our ``label`` (:data:`LABELS`) of a summarised object."""
+    return np.asarray(row["codes"]) == 5 if label == "held" else np.asarray(row["firm"], bool)
+
+
+def by_category(rows: list[dict]) -> dict:
+    """Agreement and kappa of each of our :data:`LABELS` with FleX's, pooled (``all``) and per category, with
+    bootstrap 95% intervals (grasps resampled within each object), our and FleX's success rates, and the median
+    largest rotation / translation in the hand (``max_rel_*``) of our held grasps and FleX's median shaking rotation
+    of its held ones."""
+    groups = {"all": rows}
+    for r in rows:
+        groups.setdefault(r["category"], []).append(r)
+    out: dict = {}
+    for group, members in groups.items():
+        flex = np.concatenate([r["flex"] for r in members]).astype(bool)
+        objects = np.repeat(np.arange(len(members)), [r["n"] for r in members])
+        held = np.concatenate([ours(r, "held") for r in members])
+        entry: dict = {"objects": len(members), "n": int(len(flex)), "flex_success": float(np.mean(flex))}
+        for label in LABELS:
+            mine = np.concatenate([ours(r, label) for r in members])
+            entry[label] = {"agreement": float(np.mean(mine == flex)), "kappa": kappa(mine, flex),
+                            "our_success": float(np.mean(mine)),
+                            "interval": kappa_interval(mine, flex, objects, resamples=1000)}
+        rot = np.concatenate([r["max_rel_rotation"] for r in members])[held]
+        trans = np.concatenate([r["max_rel_translation"] for r in members])[held]
+        flex_rot = np.concatenate([np.asarray(r["flex_shaking_angular"], float) for r in members])[flex]
+        entry["held_max_rel_rotation_median"] = float(np.median(rot)) if len(rot) else math.nan
+        entry["held_max_rel_translation_median"] = float(np.median(trans)) if len(trans) else math.nan
+        entry["flex_held_shaking_angular_median"] = (float(np.nanmedian(flex_rot)) if np.isfinite(flex_rot).any()
+                                                     else math.nan)
+        out[group] = entry
+    return out
+
+
 def run_protocol(cases: list[Case], lift: LiftParams, args, label: str) -> dict:
     rows = []
     for case in cases:
         t0 = time.perf_counter()
         table = evaluate(case, lift, args, robustness=args.robustness)
         rows.append(summarise(case, table, lift, args))
+        rows[-1]["flex_shaking_angular"] = case.flex_motion.get(
+            "object_motion_during_shaking_angular", np.full(len(table), np.nan)).tolist()
         print(f"  [{label}] {case.name}: {len(table)} grasps in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-    return {"objects": rows, "pooled": pooled(rows)}
+    return {"objects": rows, "pooled": pooled(rows), "labels": by_category(rows)}
+
+
+def print_labels(result: dict) -> None:
+    """The held and firm labels against FleX, pooled and per category."""
+    lift = LiftParams()
+    print(f"\nour two labels against FleX's object_in_gripper (firm: max motion in the hand <= "
+          f"{1000 * lift.firm_translation:.0f} mm and {math.degrees(lift.firm_rotation):.0f} deg), 95% bootstrap "
+          "intervals:\n")
+    print("| category | objects | n | FleX held | label | our held | agreement | kappa | median max rotation in hand "
+          "(ours held) / FleX shaking rad |")
+    print("| --- | ---: | ---: | ---: | --- | ---: | --- | --- | --- |")
+    for group, e in result["labels"].items():
+        for label in LABELS:
+            x = e[label]
+            iv = x["interval"]
+            rot = (f"{fmt(e['held_max_rel_rotation_median'])} / {fmt(e['flex_held_shaking_angular_median'])}"
+                   if label == "held" else "")
+            print(f"| {group} | {e['objects']} | {e['n']} | {fmt(e['flex_success'])} | {label} | "
+                  f"{fmt(x['our_success'])} | {fmt(x['agreement'])} ({fmt(iv['agreement'][0])}-"
+                  f"{fmt(iv['agreement'][1])}) | {fmt(x['kappa'], 2)} ({fmt(iv['kappa'][0], 2)}-"
+                  f"{fmt(iv['kappa'][1], 2)}) | {rot} |")
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -425,7 +519,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     protocols = [p for p in args.protocols.split(",") if p]
     cases = load_cases(args.calibration, args.limit)
-    report: dict = {"limit": args.limit, "gripper": gripper_info(args.gripper), "protocols": {},
+    report: dict = {"limit": args.limit, "calibration": str(args.calibration),
+                    "firm_tolerances": {"translation": LiftParams().firm_translation,
+                                        "rotation": LiftParams().firm_rotation},
+                    "gripper": gripper_info(args.gripper), "protocols": {},
                     "acronym_params": AcronymParams().to_dict(), "graspgen_params": GraspGenParams().to_dict(),
                     "machine": platform.platform(),
                     "mujoco": mujoco.__version__}
@@ -437,6 +534,7 @@ def main(argv: list[str] | None = None) -> int:
         kind = {"table": "free space, shake on", "acronym": "ACRONYM", "graspgen": "GraspDataGen"}[protocol]
         print_protocol(f"{protocol} protocol ({kind})",
                        report["protocols"][protocol], bool(args.robustness))
+        print_labels(report["protocols"][protocol])
     if args.speed:
         report["speed"] = {}
         for protocol in protocols or ["acronym"]:

@@ -27,3 +27,8 @@ class SimulationError(GraspGenError):
 
 class RenderError(GraspGenError):
     """Images were asked for where no OpenGL back end is available."""
+
+
+class MissingDependencyError(GraspGenError, ImportError):
+    """An optional part of the library was used without its extra installed. The message names the install:
+    ``graspgen.learn needs torch and scikit-learn, which are not installed: pip install -e '.[learn]' ...``."""

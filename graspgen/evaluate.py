@@ -51,6 +51,12 @@ closed_width         float64         pad separation when closing ended, m (NaN i
 lift_gain            float64         how far the object rose, m (NaN if not reached)
 rel_translation      float64         object displacement relative to the TCP after closing, m
 rel_rotation         float64         object rotation relative to the TCP after closing, rad
+firm                 bool            firm hold: outcome 5 (still in the hand) and the object's motion in the
+                                     hand within ``lift.firm_translation`` / ``firm_rotation``
+max_rel_translation  float64         largest displacement of the object in the TCP frame from the end of
+                                     closing over the disturbance (``acronym``: shake and settle; ``table``:
+                                     lift, hold, shake; ``graspgen``: tugs), m (NaN if not reached)
+max_rel_rotation     float64         largest rotation relative to the TCP over the same span, rad
 pose                 float64[16]     the TCP pose evaluated, object frame, 4x4 row-major
 contact_points       list<float64>   finger-object contacts at the end of closing, object frame, k*3 values
 contact_normals      list<float64>   their normals, into the object, object frame, k*3 values
@@ -180,6 +186,9 @@ SCHEMA = pa.schema(
         ("lift_gain", pa.float64()),
         ("rel_translation", pa.float64()),
         ("rel_rotation", pa.float64()),
+        ("firm", pa.bool_()),
+        ("max_rel_translation", pa.float64()),
+        ("max_rel_rotation", pa.float64()),
         ("pose", pa.list_(pa.float64(), 16)),
         ("contact_points", pa.list_(pa.float64())),
         ("contact_normals", pa.list_(pa.float64())),
@@ -743,6 +752,9 @@ def _table(T: np.ndarray, width: np.ndarray, source: list[str], results: list[Ro
         "lift_gain": num("lift_gain"),
         "rel_translation": num("rel_translation"),
         "rel_rotation": num("rel_rotation"),
+        "firm": pa.array([r.firm for r in results], pa.bool_()),
+        "max_rel_translation": num("max_rel_translation"),
+        "max_rel_rotation": num("max_rel_rotation"),
         "pose": fixed_list(T.reshape(n, 16), 16),
         "contact_points": variable_list(points, pa.float64()),
         "contact_normals": variable_list(normals, pa.float64()),

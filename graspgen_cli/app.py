@@ -15,6 +15,7 @@ import typer  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.text import Text  # noqa: E402
 
+from graspgen_cli.probe import probe_app  # noqa: E402
 from pipeline.cli import ConfigOpt, SetOpt, build_app, check_writable, fail, load, os_error_text  # noqa: E402
 from pipeline.errors import StageError  # noqa: E402
 from pipeline.scheduler import Project, committed, plan, upstream_view  # noqa: E402
@@ -23,6 +24,7 @@ from pipeline.store import Manifest, stage_dir  # noqa: E402
 from stages.project import PROJECT, USER_ERRORS  # noqa: E402
 
 app = build_app(PROJECT)
+app.add_typer(probe_app, name="probe")
 show_app = typer.Typer(help="Look at outputs (writes PNG images).", no_args_is_help=True)
 app.add_typer(show_app, name="show")
 
@@ -492,6 +494,8 @@ def evaluate(
     counts = ", ".join(f"{name} {n}" for name, n in outcome_counts(table).items() if n)
     mode = "support plane" if support else f"{protocol or 'table'} protocol, free space"
     console.print(f"{len(table)} grasps ({mode}): {counts}", highlight=False)
+    held, firm = int(np.sum(table.column("outcome").to_numpy() == 5)), int(np.sum(table.column("firm").to_numpy()))
+    console.print(f"labels: held {held}, firm {firm} (held and within the firm-hold tolerances)", highlight=False)
     if reference is not None:
         agree = int(np.sum((table.column("outcome").to_numpy() == 5) == (np.asarray(reference) == 1)))
         console.print(f"agreement with the file's success label: {agree}/{len(table)}", highlight=False)

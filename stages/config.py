@@ -15,6 +15,7 @@ from graspgen.validation import check
 from pipeline.config import RunConfig
 from stages.dataset import DatasetParams
 from stages.objects import ObjectsParams
+from stages.probe import ProbeParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,6 +42,10 @@ class Config:
     """Stage 5: success rate of perturbed copies of each successful grasp (Wilson interval), their epsilon and pfc."""
     metrics: MetricsParams = dataclasses.field(default_factory=MetricsParams)
     """Stage 6: Ferrari-Canny epsilon per grasp and the minimum friction for force closure."""
+    probe: ProbeParams = dataclasses.field(default_factory=ProbeParams)
+    """Learnability check: a small grasp evaluator trained on the object-centric sets of most objects and scored on
+    the held-out ones (needs torch and scikit-learn); the dataset publishes its model and report and the card's
+    Learnability section."""
     dataset: DatasetParams = dataclasses.field(default_factory=DatasetParams)
     """Stage 7: the published dataset (merged grasps.parquet, scenes, objects, ACRONYM export, card and plots)."""
 

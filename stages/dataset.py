@@ -20,6 +20,8 @@ shards as hard links, copies where links are not possible)::
     acronym/<name>.h5       each object's grasps as an ACRONYM grasp file (:mod:`graspgen.io.acronym`), rows in
                             grasps.parquet order; its mesh as acronym/meshes/<name>.obj (the file's object/file)
     plots/*.png             outcomes, robustness, epsilon, correlation (label columns present), examples
+    probe/model.pt          the learnability probe's grasp evaluator (when the probe stage ran); probe/report.json
+                            its held-out scores, which the card renders (:mod:`graspgen.io.card_learn`)
     config.yaml             the resolved config: every stage section with its comments (``run`` left out)
     card.json, card.md      counts per object and outcome, label summaries, histograms and correlations, the
                             schema, every file's sha256, every stage's shard keys, package versions, the config
@@ -123,6 +125,7 @@ from graspgen.io.dataset_table import (
     write_grasps_parquet,
 )
 from graspgen.io.graspgen_format import export_graspgen
+from graspgen.io.probe_files import publish_probe
 from graspgen.validation import check
 from pipeline.config import to_dict, to_yaml
 from pipeline.errors import StageError
@@ -148,6 +151,10 @@ OBJECT_SET_META = ("tried", "positives", "negatives", "target_positives", "targe
 """Keys of an object-grasps task's manifest meta kept in ``object_grasps.parquet``'s metadata (under
 :data:`graspgen.io.dataset_table.META_KEY`, ``"tasks"``): how far each object's set got. Timings are left out: they
 would make the bytes differ between runs."""
+
+PROBE = "probe"
+"""The learnability probe's stage (:mod:`stages.probe`); PROBE_TASK is its one task."""
+PROBE_TASK = "probe"
 
 PROVENANCE_STAGE = "rollouts"
 """``source_key`` holds the key of this stage's shard of the scene (the last table stage when it is not joined)."""
@@ -237,6 +244,10 @@ class DatasetStage(GraspStage):
     object_sets : sequence of str
         Stages whose shards are concatenated as they are into ``<stage>.parquet`` (:data:`OBJECT_SETS`); each is
         one more task of this stage, made when that stage has shards.
+    probe : str, optional
+        The learnability probe's stage (:data:`PROBE`): its shard is published as ``probe/model.pt`` and
+        ``probe/report.json`` (:func:`graspgen.io.probe_files.publish_probe`) and the card renders the report. Its
+        key enters the ``dataset`` task's key, so a new probe result publishes the folder again.
     """
 
     name = "dataset"
@@ -244,12 +255,13 @@ class DatasetStage(GraspStage):
     ext = "parquet"
     published = ("dataset",)
 
-    def __init__(self, tables: Sequence[str] = TABLES, object_sets: Sequence[str] = ()):
+    def __init__(self, tables: Sequence[str] = TABLES, object_sets: Sequence[str] = (), probe: str | None = None):
         if not tables:
             raise StageError("dataset: needs at least one table stage")
         self.tables = tuple(tables)
         self.object_sets = tuple(object_sets)
-        self.inputs = ("objects", "scenes", *self.tables, *self.object_sets)
+        self.probe = probe
+        self.inputs = ("objects", "scenes", *self.tables, *self.object_sets, *((probe,) if probe else ()))
 
     def params(self, config: Any) -> DatasetTaskParams:
         sections = {f.name: getattr(config, f.name) for f in dataclasses.fields(config) if f.name != "run"}
@@ -257,6 +269,8 @@ class DatasetStage(GraspStage):
 
     def tasks(self, params: DatasetTaskParams, upstream: Upstream) -> list[Task]:
         needs = {stage: upstream.ids(stage) for stage in ("objects", "scenes", *self.tables)}
+        if self.probe and upstream.ids(self.probe):
+            needs[self.probe] = upstream.ids(self.probe)
         tasks = [Task(id="dataset", payload={"tables": list(self.tables)}, needs=needs)]
         for stage in self.object_sets:
             if upstream.ids(stage):
@@ -374,6 +388,9 @@ class DatasetStage(GraspStage):
             shard("objects", name, f"objects/{name}.h5")
         write_text_atomic(root / "config.yaml", config_yaml(params.config))
         add_file(files, root, "config.yaml")
+        if self.probe and PROBE_TASK in shards.ids(self.probe):
+            for rel in publish_probe(shards.path(self.probe, PROBE_TASK), root):
+                add_file(files, root, rel)
         if params.dataset.acronym:  # ACRONYM's meaning (a free-space label per object grasp) where there is one
             export = export_object_acronym if "object_grasps" in object_sets else export_acronym
             for rel in export(root):

@@ -1,4 +1,4 @@
-"""This project's pipeline: its config schema and its nine stages."""
+"""This project's pipeline: its config schema and its ten stages."""
 
 from __future__ import annotations
 
@@ -6,12 +6,13 @@ from graspgen.errors import GraspGenError
 from pipeline.errors import GenError
 from pipeline.scheduler import Project
 from stages.config import Config
-from stages.dataset import OBJECT_SETS, DatasetStage
+from stages.dataset import OBJECT_SETS, PROBE, DatasetStage
 from stages.grasps import GraspsStage
 from stages.metrics import MetricsStage
 from stages.object_grasps import ObjectGraspsStage
 from stages.objects import ObjectsStage
 from stages.placed_grasps import PlacedGraspsStage
+from stages.probe import ProbeStage
 from stages.robustness import RobustnessStage
 from stages.rollouts import RolloutsStage
 from stages.scenes import ScenesStage
@@ -28,7 +29,8 @@ PROJECT = Project(
         RolloutsStage(),
         RobustnessStage(),
         MetricsStage(),
-        DatasetStage(tables=("grasps", "rollouts", "robustness", "metrics"), object_sets=OBJECT_SETS),
+        ProbeStage(),
+        DatasetStage(tables=("grasps", "rollouts", "robustness", "metrics"), object_sets=OBJECT_SETS, probe=PROBE),
     ),
     user_errors=(GraspGenError,),
 )

@@ -65,7 +65,7 @@ def test_published_layout(run):
         assert (d / name).is_file(), name
     # Only the dataset: the engine's shards and manifest of this stage live in OUT/shards/dataset.
     published = {"grasps.parquet", "object_grasps.parquet", "placed_grasps.parquet", "card.md", "card.json",
-                 "config.yaml", "scenes", "objects", "acronym", "graspgen", "plots"}
+                 "config.yaml", "scenes", "objects", "acronym", "graspgen", "plots", "probe"}
     assert {p.name for p in d.iterdir()} == published
     plots = {p.name for p in (d / "plots").glob("*.png")}
     assert plots == {"outcomes.png", "robustness.png", "epsilon.png", "correlation.png", "examples.png"}
@@ -80,7 +80,7 @@ def test_published_layout(run):
     card = json.loads((d / "card.json").read_text())
     assert set(card["files"]) >= {"grasps.parquet", "config.yaml", *(f"plots/{p}" for p in plots)}
     assert set(card["stages"]) == {"objects", "object_grasps", "scenes", "grasps", "placed_grasps", "rollouts",
-                                   "robustness", "metrics", "dataset"}
+                                   "robustness", "metrics", "probe", "dataset"}
     assert card["stages"]["rollouts"]["keys"] == keys(root / "out", "rollouts")
     assert card["config"]["grasps"]["max_per_object"] == 24 and "run" not in card["config"]
     assert {"python", "numpy", "mujoco", "pyarrow", "graspgen"} <= set(card["versions"])
@@ -348,7 +348,7 @@ def test_status_names_damaged_published_files_and_run_replaces_them(run, tmp_pat
     reports = {r.stage: r for r in run_pipeline(PROJECT, cfg)}
     assert {s: r.ran for s, r in reports.items()} == {
         "objects": 0, "object_grasps": 0, "scenes": 1, "grasps": 0, "placed_grasps": 0, "rollouts": 0,
-        "robustness": 0, "metrics": 0, "dataset": 1,
+        "robustness": 0, "metrics": 0, "probe": 0, "dataset": 1,
     }
     assert reports["dataset"].repaired == [
         "replaced grasps.parquet (damaged)",

@@ -21,7 +21,7 @@ from graspgen.evaluate import CHEAP_COACD, evaluate_grasps
 from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal
 from graspgen.geometry.prepare import prepare_object
 from graspgen.geometry.stable_poses import StablePoseParams
-from graspgen.io.acronym import FLEX_MOTION, export_object_acronym, read_acronym
+from graspgen.io.acronym import FIRM_KEY, FLEX_MOTION, export_object_acronym, read_acronym
 from graspgen.io.arrow import column_array, fixed_list
 from graspgen.io.files import write_h5, write_parquet
 from graspgen.io.graspgen_format import (
@@ -66,6 +66,7 @@ def object_set(path: Path, name: str, density: float, cache: Path, seed: int) ->
         "outcome_name": ev.column("outcome_name"),
         "decided_in": ev.column("decided_in"),
         "success": pa.array(outcome == 5),
+        **{c: ev.column(c) for c in ("firm", "max_rel_translation", "max_rel_rotation")},
         "closed_width": ev.column("closed_width"),
         **{m: ev.column(m) for m in MOTIONS},
         **{c: ev.column(c) for c in ("contact_points", "contact_normals", "contact_forces", "contact_fingers")},
@@ -130,6 +131,13 @@ def test_object_acronym_files_round_trip_poses_labels_and_motions(dataset):
         np.testing.assert_array_equal(grasps.qualities["graspgen/closed_width"], rows.column("closed_width").to_numpy())
         assert np.isnan(grasps.qualities["graspgen/epsilon"]).all()  # null (not measured) stays NaN, not 0
         assert np.isnan(grasps.qualities["graspgen/robustness"]).all()
+        # object_in_gripper is the still-held label; the firm-hold label and its measures are extra qualities
+        firm = rows.column("firm").to_numpy(zero_copy_only=False)
+        assert grasps.qualities[FIRM_KEY].dtype == np.int8
+        np.testing.assert_array_equal(grasps.qualities[FIRM_KEY], firm.astype(np.int8))
+        assert not np.any(firm & ~grasps.success.astype(bool))  # firm implies held
+        for column in ("max_rel_translation", "max_rel_rotation"):
+            np.testing.assert_array_equal(grasps.qualities[f"graspgen/{column}"], rows.column(column).to_numpy())
         assert grasps.attrs == {"protocol": "acronym"}
         record = read_object(dataset / "objects" / f"{name}.h5")
         assert grasps.object_file == f"meshes/{name}.obj" and grasps.object_scale == 1.0
@@ -192,6 +200,7 @@ def test_graspgen_export_round_trips_poses_flags_and_meshes(dataset):
         T_tcp = column_array(rows, "pose_object", (4, 4))
         np.testing.assert_allclose(entry.tcp_poses(), T_tcp, atol=1e-12)
         np.testing.assert_array_equal(entry.success, rows.column("success").to_numpy(zero_copy_only=False))
+        np.testing.assert_array_equal(entry.firm, rows.column("firm").to_numpy(zero_copy_only=False))
         np.testing.assert_array_equal(entry.grasp_ids, rows.column("grasp_id").to_numpy())
         assert entry.scale == 1.0 and entry.depth == PANDA_TCP_OFFSET and entry.protocol == "acronym"
         record = read_object(dataset / "objects" / f"{entry.name}.h5")

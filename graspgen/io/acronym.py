@@ -4,6 +4,8 @@ An ACRONYM grasp file is one HDF5 file per object (ARCHITECTURE.md, Conventions)
 
     grasps/transforms                          (n, 4, 4) float   hand-base poses in the object's mesh frame, m
     grasps/qualities/flex/object_in_gripper    (n,)      int     1 = the object stayed in the gripper (success)
+    grasps/qualities/graspgen/firm_hold        (n,)      int8    ours: 1 = held *and* its motion in the hand
+                                                                 stayed within the firm-hold tolerances
     grasps/qualities/...                       (n,)      any     further per-grasp qualities (kept as read)
     object/file                                string            mesh path, relative to a mesh root folder
     object/scale                               float             metres per mesh-file unit (applied to the mesh)
@@ -28,8 +30,10 @@ relative to the ``acronym`` folder, ACRONYM's mesh root):
 
 * :func:`export_object_acronym`, ACRONYM's own meaning: the object-centric grasp sets of ``object_grasps.parquet``
   (:mod:`graspgen.sim.object_grasps`), labelled in free space by a free-space protocol (``acronym``: ACRONYM's
-  close-and-shake test). ``flex/object_in_gripper`` is that protocol's success and the four
-  ``flex/object_motion_during_{closing,shaking}_{linear,angular}`` are its motion measures (:data:`FLEX_MOTION`).
+  close-and-shake test). ``flex/object_in_gripper`` is that protocol's success (still in the hand: the
+  still-held label) and the four ``flex/object_motion_during_{closing,shaking}_{linear,angular}`` are its motion
+  measures (:data:`FLEX_MOTION`); the firm-hold label (:mod:`graspgen.sim.lift`) is the extra quality
+  ``graspgen/firm_hold`` (1 / 0), with the measures it reads, ``graspgen/max_rel_{translation,rotation}``.
 * :func:`export_acronym`: the scene-bound grasps of ``grasps.parquet`` (success = the table-top rollout's outcome 5),
   in each object's mesh frame. Same file layout, but not ACRONYM's free-space label.
 """
@@ -67,6 +71,8 @@ __all__ = [
     "export_acronym",
     "export_object_acronym",
     "FLEX_MOTION",
+    "FIRM_KEY",
+    "FIRM_COLUMNS",
 ]
 
 SUCCESS_KEY = "flex/object_in_gripper"
@@ -86,6 +92,14 @@ FLEX_MOTION: dict[str, str] = {
 }
 """Our rollout motion columns (m, rad; NaN where the phase was not reached) -> ACRONYM's quality keys (below
 ``grasps/qualities``) for the same measures of its close-and-shake test."""
+
+FIRM_KEY = "graspgen/firm_hold"
+"""Key (below ``grasps/qualities``) of our firm-hold label (1 / 0): still held and the object's motion in the hand
+within the firm-hold tolerances (:attr:`graspgen.sim.lift.RolloutResult.firm`). ``flex/object_in_gripper`` stays
+the still-held label."""
+
+FIRM_COLUMNS: tuple[str, ...] = ("firm", "max_rel_translation", "max_rel_rotation")
+"""Table columns the exports write as ``graspgen/firm_hold`` and ``graspgen/<column>`` when ``firm`` is present."""
 
 
 def _offset(tcp_offset: float) -> np.ndarray:
@@ -265,9 +279,12 @@ def read_acronym(path: str | Path) -> AcronymGrasps:
         except SettingsError as exc:
             raise InputError(f"{path}: {exc}") from None
         qualities = _qualities(f["grasps/qualities"]) if "grasps/qualities" in f else {}
-        for key, value in qualities.items():
-            if value.shape[:1] != (len(T),):
-                raise InputError(f"{path}: grasps/qualities/{key} has shape {value.shape}, expected ({len(T)},)")
+        # Only the label is required to be per grasp: real ACRONYM exports carry other-shaped extras (one of
+        # ../shared/learn has flex/object_in_gripper_grasp of shape (65, 2000)), which are not ours to judge.
+        success = qualities.get(SUCCESS_KEY)
+        if success is not None and success.shape[:1] != (len(T),):
+            raise InputError(f"{path}: grasps/qualities/{SUCCESS_KEY} has shape {success.shape}, expected ({len(T)},)")
+        qualities = {k: v for k, v in qualities.items() if v.shape[:1] == (len(T),)}
         obj, grip = f["object"], f.get("gripper")
         scale = _float(obj, "scale")
         if scale is not None and not (scale > 0 and math.isfinite(scale)):
@@ -379,7 +396,8 @@ def export_acronym(root: Path) -> list[str]:
 
     Poses are the TCP poses in the object's mesh frame (``pose_object``), written as hand-base poses
     (:func:`write_acronym`); success is outcome 5. Further qualities under ``grasps/qualities/
-    graspgen/``: outcome, width, and the labels present (robustness, pfc, epsilon; NaN where missing). Rows are in
+    graspgen/``: outcome, width, and the labels present (robustness, pfc, epsilon; NaN where missing;
+    ``firm_hold``, 1 / 0, and ``max_rel_translation`` / ``max_rel_rotation`` when the table has ``firm``). Rows are in
     grasps.parquet order (by scene, then grasp id); ``graspgen/grasp_id`` and the order give the way back.
 
     Returns
@@ -390,7 +408,8 @@ def export_acronym(root: Path) -> list[str]:
     wanted = ["object_name", "gripper", "pose_object", "outcome", "width", "grasp_id"]
     schema = pq.read_schema(root / "grasps.parquet")
     labels = [c for c in ("robustness", "pfc", "epsilon") if c in schema.names]
-    table = pq.read_table(root / "grasps.parquet", columns=wanted + labels)
+    firm = [c for c in FIRM_COLUMNS if c in schema.names] if "firm" in schema.names else []
+    table = pq.read_table(root / "grasps.parquet", columns=wanted + labels + firm)
     written = []
     for name, part in _by_object(table, root / "grasps.parquet"):
         gripper = _one_gripper(part, name, root / "grasps.parquet")
@@ -402,6 +421,7 @@ def export_acronym(root: Path) -> list[str]:
         }
         for label in labels:
             qualities[f"graspgen/{label}"] = float_values(part.column(label))
+        qualities.update(_firm_qualities(part, firm))
         T = np.asarray(part.column("pose_object").combine_chunks().values, dtype=np.float64).reshape(-1, 4, 4)
         rel = f"acronym/{name}.h5"
         with atomic_path(root / rel) as tmp:
@@ -434,7 +454,11 @@ def export_object_acronym(root: Path) -> list[str]:
 
     * ``grasps/transforms``: ``pose_object`` (TCP, object mesh frame) as ACRONYM's hand-base poses,
       ``T_tcp @ Trans(0, 0, -tcp_offset)`` with the row gripper's ``tcp_offset`` (:func:`write_acronym`);
-    * ``grasps/qualities/flex/object_in_gripper``: ``success`` of the free-space protocol (1 / 0);
+    * ``grasps/qualities/flex/object_in_gripper``: ``success`` of the free-space protocol (1 / 0), the still-held
+      label (ACRONYM's meaning);
+    * ``grasps/qualities/graspgen/firm_hold``: ``firm`` (1 / 0, int8), the firm-hold label, and
+      ``graspgen/max_rel_translation`` / ``max_rel_rotation`` (m, rad), the measures it reads, where the table has
+      them;
     * ``grasps/qualities/flex/object_motion_during_{closing,shaking}_{linear,angular}``: the ``motion_*`` columns
       (m, rad; NaN where the phase was not reached), where the table has them (:data:`FLEX_MOTION`);
     * ``grasps/qualities/graspgen/``: ``grasp_id`` (int32), ``outcome`` (int8), ``width`` (contact width, m) and,
@@ -464,7 +488,8 @@ def export_object_acronym(root: Path) -> list[str]:
         raise InputError(f"{path}: not an object grasp table: no column(s) {', '.join(missing)}")
     motions = [c for c in FLEX_MOTION if c in names]
     extras = [c for c in ("open_width", "closed_width", "epsilon", "robustness") if c in names]
-    table = pq.read_table(path, columns=required + motions + extras)
+    firm = [c for c in FIRM_COLUMNS if c in names] if "firm" in names else []
+    table = pq.read_table(path, columns=required + motions + extras + firm)
     written = []
     for name, part in _by_object(table, path):
         gripper = _one_gripper(part, name, path)
@@ -477,6 +502,7 @@ def export_object_acronym(root: Path) -> list[str]:
         qualities["graspgen/outcome"] = part.column("outcome").to_numpy().astype(np.int8)
         for column in ("width", *extras):
             qualities[f"graspgen/{column}"] = float_values(part.column(column))
+        qualities.update(_firm_qualities(part, firm))
         rel = f"acronym/{name}.h5"
         with atomic_path(root / rel) as tmp:
             write_acronym(
@@ -492,6 +518,19 @@ def export_object_acronym(root: Path) -> list[str]:
             )
         written += [mesh_rel, rel]
     return written
+
+
+def _firm_qualities(part: pa.Table, columns: list[str]) -> dict[str, np.ndarray]:
+    """The firm-hold qualities of one object's rows: ``graspgen/firm_hold`` (int8 1 / 0, null as 0) and the
+    measures it reads (float64, NaN for nulls), for the :data:`FIRM_COLUMNS` present in ``columns``."""
+    out: dict[str, np.ndarray] = {}
+    for column in columns:
+        if column == "firm":
+            values = part.column("firm").fill_null(False).to_numpy(zero_copy_only=False)
+            out[FIRM_KEY] = values.astype(np.int8)
+        else:
+            out[f"graspgen/{column}"] = float_values(part.column(column))
+    return out
 
 
 def _by_object(table: pa.Table, path: Path) -> list[tuple[str, pa.Table]]:

@@ -27,6 +27,7 @@ import yaml
 
 from graspgen.errors import InputError
 from graspgen.io.atomic import write_text_atomic
+from graspgen.io.card_learn import learnability, learnability_lines
 from graspgen.io.dataset_table import FORMAT, META_KEY, OUTCOME_NAMES, dataset_dir, float_values
 from graspgen.io.files import sha256_file
 from graspgen.validation import check
@@ -57,10 +58,10 @@ DISCRETE_LABEL_VALUES = 32
 """A label with at most this many distinct values is counted per value (robustness and pfc of up to 31 copies, a
 friction grid), not binned."""
 
-CARD_VERSION = 3
+CARD_VERSION = 4
 """Bump when the card's content or the plots change: published folders are then re-rendered."""
 
-MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots", "graspgen", "graspgen/objects")
+MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots", "graspgen", "graspgen/objects", "probe")
 """Subfolders of a dataset folder that the card owns: files there that it does not list are not part of the
 dataset, and :func:`build_card` removes them."""
 
@@ -332,6 +333,7 @@ def build_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, An
         "warnings": [str(w) for w in provenance.get("warnings", [])],
         "schema": _schema_doc(schema),
         "plots": plots,
+        "learnability": learnability(root, files, provenance["config"], provenance.get("warnings", [])),
         "files": {k: files[k] for k in sorted(files)},
         "stages": provenance["stages"],
         "versions": provenance["versions"],
@@ -398,6 +400,9 @@ def render_card(card: Mapping[str, Any]) -> str:
         lines.append(f"| `acronym/<name>.h5` | each object's {what} in the ACRONYM format (mesh: `acronym/meshes/`) |")
     if any(k.startswith("graspgen/") for k in card["files"]):
         lines.append("| `graspgen/` | the object-centric sets in GraspGen's layout (splits, one JSON per object) |")
+    if any(k.startswith("probe/") for k in card["files"]):
+        lines.append("| `probe/` | `model.pt`, a grasp evaluator trained on the object sets, and `report.json`, its "
+                     "held-out scores (Learnability, below) |")
     lines += [
         "| `config.yaml` | the resolved config (`gen run --config config.yaml` makes the dataset again) |",
         "| `card.json` | this card as data, with every file's sha256 and every shard key |",
@@ -423,6 +428,7 @@ def render_card(card: Mapping[str, Any]) -> str:
         lines.append(f"| {name} | {o['scenes']} | {o['grasps']} | {counts} | {rate} |")
     lines += ["", "Columns 0-5 are the outcome codes above.", ""]
     lines += _object_set_lines(sets)
+    lines += learnability_lines(card.get("learnability"))
     lines += ["## Labels", ""]
     if card["labels"]:
         lines += [

@@ -85,6 +85,9 @@ COLUMN_DOCS: dict[str, str] = {
     "outcome": "rollout outcome: 0 collision_with_ground, 1 collision_with_target, 2 collision_with_clutter, "
     "3 no_contact_established, 4 slipped_during_lifting, 5 success",
     "outcome_name": "name of the outcome code",
+    "firm": "firm-hold label: outcome 5 (still in the hand: the still-held label, exported as ACRONYM's "
+    "flex/object_in_gripper) and the object's largest motion in the hand during lift, hold and shake within "
+    "rollouts.lift.firm_translation (5 mm) and firm_rotation (5 degrees); exported as graspgen/firm_hold",
     "simulated": "false when the pre-filter decided the outcome",
     "decided_in": "rollout phase that decided the outcome (prefilter when not simulated)",
     "steps": "simulated steps",
@@ -93,6 +96,9 @@ COLUMN_DOCS: dict[str, str] = {
     "lift_gain": "how far the object rose, m (NaN if not reached)",
     "rel_translation": "object displacement relative to the TCP after closing, m",
     "rel_rotation": "object rotation relative to the TCP after closing, rad",
+    "max_rel_translation": "largest displacement of the object's centre of mass in the hand (TCP frame) from the "
+    "end of closing, over every check of lift, hold and shake, m (NaN if not reached); the firm label reads it",
+    "max_rel_rotation": "largest rotation of the object relative to the hand (TCP frame) over the same checks, rad",
     "contact_points": "finger-object contacts at the end of closing, world frame, k*3 values, m",
     "contact_normals": "their normals, into the object, k*3 values",
     "contact_forces": "their normal forces, k values, N",
@@ -169,6 +175,9 @@ LABEL_TYPES = {
     "grip_robustness": pa.float64(),
     "grip_robustness_lo": pa.float64(),
     "grip_robustness_hi": pa.float64(),
+    "firm": pa.bool_(),
+    "max_rel_translation": pa.float64(),
+    "max_rel_rotation": pa.float64(),
 }
 """Types of the label columns, checked when present."""
 

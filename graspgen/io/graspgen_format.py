@@ -21,13 +21,18 @@ loads ``os.path.join(object_root_dir, key)``). Train with GraspGen's ``object_ro
       "gripper": {"name": "<gripper>", "width": max_width, "depth": tcp_offset,
                   "transform_offset_from_asset_to_graspgen_convention": [[0, 0, 0], [0, 0, 0, 1]]},
       "grasps":  {"transforms": [(4, 4) nested lists, ...], "object_in_gripper": [true, false, ...],
-                  "grasp_id": [int, ...], "protocol": "<protocol>"}
+                  "grasp_id": [int, ...], "protocol": "<protocol>", "firm_hold": [true, false, ...]}
     }
 
 GraspGen itself reads ``object.file``, ``object.scale``, ``grasps.transforms`` and ``grasps.object_in_gripper`` (JSON
 booleans: the loader indexes the poses with them as a boolean mask, so 0/1 integers would pick rows 0 and 1); the
 ``gripper`` block is the one GraspDataGen writes (informational: GraspGen takes its gripper from its own config
-``config/grippers/<name>.yaml``); ``grasp_id`` and ``protocol`` are ours, for the way back to our tables. Floats are
+``config/grippers/<name>.yaml``); ``grasp_id`` and ``protocol`` are ours, for the way back to our tables. Labels:
+``object_in_gripper``, the one GraspGen trains on, is our still-held label (the table's ``success``: outcome 5, the
+object still between the fingers after the protocol's disturbance, as ACRONYM's and GraspDataGen's labels are);
+``firm_hold`` (ours, written when the table has ``firm``; GraspGen ignores it) is the firm-hold label (still held
+and the object's motion in the hand within the firm-hold tolerances, :mod:`graspgen.sim.lift`). To train GraspGen
+on firm holds, write ``firm`` as ``success`` (:class:`GraspGenObject`). Floats are
 written with Python's shortest round-trip repr, so the JSON holds the poses exactly.
 
 Frames (stated precisely, and tested). ``grasps.transforms`` are the **gripper base-link frame** in the object's mesh
@@ -108,6 +113,8 @@ class GraspGenObject:
     """(n,) int grasp ids (default 0..n-1)."""
     protocol: str = ""
     """The protocol that labelled the grasps (e.g. ``acronym``), recorded in the JSON."""
+    firm: np.ndarray | None = None
+    """(n,) bool firm-hold labels (written as ``firm_hold``; None: not written)."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -138,6 +145,8 @@ class GraspGenEntry:
     """``grasps.protocol`` ('' when absent)."""
     path: Path
     """The JSON file."""
+    firm: np.ndarray | None = None
+    """(n,) bool ``grasps.firm_hold`` (ours: the firm-hold label) or None when absent."""
 
     def __len__(self) -> int:
         return len(self.transforms)
@@ -186,6 +195,9 @@ def _grasp_json(obj: GraspGenObject, key: str) -> tuple[str, str]:
     ids = np.arange(n) if obj.grasp_ids is None else np.asarray(obj.grasp_ids).reshape(-1)
     if len(ids) != n:
         raise ValueError(f"{obj.name}: grasp_ids: expected {n} ids (one per pose), got {len(ids)}")
+    firm = None if obj.firm is None else np.asarray(obj.firm).reshape(-1)
+    if firm is not None and len(firm) != n:
+        raise ValueError(f"{obj.name}: firm: expected {n} labels (one per pose), got {len(firm)}")
     T_base = hand_base_from_tcp(T_tcp, spec.tcp_offset) if n else T_tcp
     data = {
         "object": {"file": key, "scale": 1.0},
@@ -194,6 +206,8 @@ def _grasp_json(obj: GraspGenObject, key: str) -> tuple[str, str]:
         "grasps": {"transforms": T_base.tolist(), "object_in_gripper": [bool(s) for s in success],
                    "grasp_id": [int(i) for i in ids], "protocol": str(obj.protocol)},
     }
+    if firm is not None:
+        data["grasps"]["firm_hold"] = [bool(f) for f in firm]
     return json.dumps(data, separators=(",", ":")) + "\n", spec.name
 
 
@@ -268,7 +282,8 @@ def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
     """The object grasp sets of a published dataset folder in GraspGen's layout, under ``root/graspgen/``.
 
     Reads ``root/object_grasps.parquet`` (columns ``object_name``, ``grasp_id``, ``gripper``, ``protocol``,
-    ``pose_object`` (TCP, object mesh frame), ``success``; rows by object, then ``grasp_id``) and each object's mesh
+    ``pose_object`` (TCP, object mesh frame), ``success`` (written as ``object_in_gripper``), ``firm`` when present
+    (written as ``firm_hold``); rows by object, then ``grasp_id``) and each object's mesh
     from ``root/objects/<object>.h5`` (``mesh/vertices``, ``mesh/faces``: the frame of ``pose_object``), and calls
     :func:`write_graspgen` with one entry per (object, gripper), grasps in table order.
 
@@ -297,7 +312,8 @@ def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
     missing = [c for c in wanted if c not in pq.read_schema(path).names]
     if missing:
         raise InputError(f"{path}: not an object grasp table: no column(s) {', '.join(missing)}")
-    table = pq.read_table(path, columns=wanted)
+    has_firm = "firm" in pq.read_schema(path).names
+    table = pq.read_table(path, columns=wanted + (["firm"] if has_firm else []))
     names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
     grippers = np.asarray(table.column("gripper").to_pylist(), dtype=object)
     objects, meshes = [], {}
@@ -315,6 +331,8 @@ def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
             T_tcp=column_array(part, "pose_object", (4, 4)),
             success=part.column("success").to_numpy(zero_copy_only=False).astype(bool),
             gripper=gripper, grasp_ids=part.column("grasp_id").to_numpy(), protocol=str(protocols[0]),
+            firm=part.column("firm").fill_null(False).to_numpy(zero_copy_only=False).astype(bool) if has_firm
+            else None,
         ))
     return [f"graspgen/{rel}" for rel in write_graspgen(root / "graspgen", objects, valid_fraction=valid_fraction)]
 
@@ -394,14 +412,19 @@ def _read_entry(path: Path, root: Path, gripper: str, split_of_key: Mapping[str,
     ids = np.asarray(grasps["grasp_id"], dtype=np.int64) if "grasp_id" in grasps else None
     if ids is not None and ids.shape != (len(T),):
         raise InputError(f"{path}: grasps.grasp_id must be {len(T)} ids, got shape {ids.shape}")
+    firm = np.asarray(grasps["firm_hold"]) if "firm_hold" in grasps else None
+    if firm is not None and (firm.shape != (len(T),) or (len(T) and firm.dtype != np.bool_)):
+        raise InputError(f"{path}: grasps.firm_hold must be {len(T)} booleans (one per transform), got shape "
+                         f"{firm.shape} of {firm.dtype}")
     grip = data.get("gripper") or {}
     success = success.astype(bool)
-    for a in (T, success, ids):
+    firm = None if firm is None else firm.astype(bool)
+    for a in (T, success, ids, firm):
         if a is not None:
             a.setflags(write=False)
     name = path.name[: -len(".grasps.json")] if path.name.endswith(".grasps.json") else path.stem
     return GraspGenEntry(
         key=key, name=name, gripper=gripper, split=split_of_key.get(key), mesh_path=root / "objects" / key,
         scale=scale, transforms=T, success=success, depth=float(grip["depth"]) if "depth" in grip else None,
-        grasp_ids=ids, protocol=str(grasps.get("protocol", "")), path=path,
+        grasp_ids=ids, protocol=str(grasps.get("protocol", "")), path=path, firm=firm,
     )

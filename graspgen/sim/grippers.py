@@ -66,14 +66,42 @@ Modelling, the same for every gripper:
   - the **object's sliding friction** governs gripper-object contacts: gripper geoms have priority 0 (like objects)
     and sliding friction 0, so max(0, mu_object) = mu_object. A scene's per-object friction is what the simulation
     uses: a 0.01-friction box slips out of the pads, a 0.8 one is lifted;
-  - the **pads' torsional/rolling friction and condim** (:attr:`GripperSpec.pad_friction` [1:], :attr:`pad_condim`)
-    act as a floor, so pad contacts have torsional friction even with condim-3 objects;
+  - the **pads' condim** (:attr:`pad_condim`) acts as a floor, so pad contacts have torsional friction even with
+    condim-3 objects; their torsional coefficient on objects is derived (below), :attr:`GripperSpec.pad_friction`
+    [1:] is the floor of their other contacts;
   - the **gripper's stiff contact softness** governs (solref 4 ms, solimp 0.95/0.99, via ``solmix`` = 1e6): MuJoCo's
     softness is mass-normalised, and with the default solref (20 ms) a 100 N grip on a 0.1 kg box sinks ~7 mm into
     each pad; with the stiff setting (and the jaw armature) it is ~0.1-0.3 mm.
 
   ``friction="pad"`` gives gripper geoms priority 1 instead: the pads' full :attr:`pad_friction` (e.g. 1.0),
   condim and solref govern, and the object's friction is ignored for gripper contacts.
+
+* **Pad-object torsional friction is derived, per object** (:func:`pad_torsion_arm`, :func:`set_pad_torsion`).
+  MuJoCo's torsional friction (condim >= 4) limits the moment about a contact's normal to ``gamma * f_n`` with
+  ``gamma`` in metres. Coulomb friction ``mu p dA`` over a patch A pressed with total force F under uniform pressure
+  resists a moment of ``mu F r_mean``, r_mean = the mean distance of A from its centroid (Howe & Cutkosky 1996,
+  "Practical force-motion models for sliding manipulation", IJRR 15(6); the limit-surface view of Goyal, Ruina &
+  Papadopoulos 1991), so ``gamma = mu_contact * r_mean(pad face)``: it scales with the object's friction as Coulomb
+  friction does. The patch is the pad face (``pad_size`` y x z), the patch of a flat object face that covers the
+  pad; a smaller or curved face touches less of it, so this is the upper end. Pressure model, by argument: the pads
+  are flat faces (rubber-faced on the Panda and the 2F-85) pressed against flat faces; a thin compliant layer on a
+  rigid backing squeezed between parallel flat faces is compressed evenly (a Winkler foundation: pressure ~ local
+  compression), so the pressure is uniform. Hertz's ``p0 sqrt(1 - r^2/R^2)`` is for non-conforming curved bodies
+  (it would give 3 pi / 16 = 0.59 instead of 2/3 = 0.67 mu F R on a disc, 12 % less) and a rigid flat punch on an
+  elastic half-space concentrates pressure at the rim (pi / 4 = 0.79 mu F R, 18 % more): neither describes a flat
+  pad on a flat face. Sliding and torsion share MuJoCo's elliptic cone ``(f_t / mu)^2 + (m / gamma)^2 <= f_n^2``,
+  the ellipsoidal approximation of the limit surface in the same papers. Where it is written: MuJoCo takes the
+  larger of two geoms' torsional coefficients, so with ``friction="object"`` the pads carry 0 and
+  :func:`attach_gripper` gives every object geom already in the world ``mu_object * r_mean`` (objects are condim
+  3: the value acts only in their condim-4 contacts with the pads); a scene of objects of different frictions gets
+  each its own ``gamma``, and masks (contype / conaffinity) still switch contacts off. Not explicit ``<pair>``s:
+  those ignore the masks and the geoms' friction, which other code edits at run time. With ``"pad"`` the pads
+  carry their own ``mu_pad * r_mean``. One gripper per world sets the object values (a second attached one
+  overwrites them). Caveat, measured (:mod:`graspgen.sim.mechanics`): MuJoCo 4 (multiccd) gives a pad several
+  contact points on a flat face (the Panda's mesh pad 3, a box pad 4 at its corners), whose sliding friction
+  resists torsion too; the Panda's pivot threshold lands within 4 % of ``mu F r_mean``, box pads resist 35-40 %
+  more. Rolling friction is not derived: the bundled pads are condim 4 (a flat pad resists tipping by shifting its
+  pressure, not by friction), so rolling is the larger of the two geoms' values, as before, and unused.
 
 Physics settings that hold objects (measured): timestep 2 ms, elliptic friction cones, impratio 10, implicitfast
 (:class:`PhysicsOptions`). With MuJoCo's defaults (pyramidal cones, impratio 1) held objects creep: measured here, a
@@ -128,6 +156,9 @@ __all__ = [
     "gripper_width",
     "pad_geom_ids",
     "gripper_geom_ids",
+    "pad_torsion_arm",
+    "object_torsion",
+    "set_pad_torsion",
     "Linkage",
     "LinkageCouplings",
     "linkage_couplings",
@@ -353,8 +384,10 @@ class GripperSpec:
     contact face's width and length (and the geom's thickness)."""
     pad_friction: tuple[float, float, float]
     """MuJoCo friction of the pads: (sliding [-], torsional [m], rolling [m]). With ``build_gripper(friction="pad")``
-    all three govern pad contacts; with the default ``friction="object"`` the sliding coefficient is replaced by the
-    object's and the torsional/rolling ones act as a floor (see the module docstring)."""
+    the sliding coefficient governs pad contacts; with the default ``friction="object"`` the object's does. The
+    torsional coefficient of a pad's contact with an object is derived, not taken from here: ``mu`` x
+    :func:`pad_torsion_arm`, written on the object geoms by :func:`attach_gripper` (module docstring); the torsional and
+    rolling entries are the floor of the pads' other contacts (support, ground, objects added after the gripper)."""
     finger_size: tuple[float, float, float]
     """Full extents (m) of each finger link box: (thickness along x, width along y, length along z). The box sits
     directly behind (outside) its pad and its tip is flush with the pad's tip (z = pad length / 2). With
@@ -511,11 +544,11 @@ _BUNDLED = {"box_jaw": "box_jaw.yaml", "panda": "panda/panda.yaml", "robotiq_2f8
 #: digest of this module, and with it these digests, so editing a bundled file (and then this table, which
 #: tests/test_grippers.py checks) re-runs the stages that use grippers, with the same random draws.
 BUNDLED_DIGESTS = {
-    "box_jaw.yaml": "329280a73f8064fc",
+    "box_jaw.yaml": "0aad5e0055e1f959",
     "panda/finger.obj": "67373fdf9def1084",
     "panda/hand.obj": "feaab1d7eddd6fcb",
     "panda/pad.obj": "88587d01d351de87",
-    "panda/panda.yaml": "f5ac329df019f158",
+    "panda/panda.yaml": "560bbd1544ce8738",
     "robotiq_2f85/airo/robotiq_arg2f_85_inner_finger.obj": "f6507cef254ba4a1",
     "robotiq_2f85/airo/robotiq_arg2f_85_inner_knuckle.obj": "81dcdd59590b823a",
     "robotiq_2f85/airo/robotiq_arg2f_85_outer_finger.obj": "135d80498c0bdee5",
@@ -525,8 +558,8 @@ BUNDLED_DIGESTS = {
     "robotiq_2f85/finger.obj": "49b214ca3971d013",
     "robotiq_2f85/follower.obj": "71cda5c7693f5f7a",
     "robotiq_2f85/palm.obj": "bfdebd31d584551f",
-    "robotiq_2f85/robotiq_2f85_mesh.yaml": "0069d5d15b9a0240",
-    "robotiq_2f85.yaml": "6db6df18957fc96a",
+    "robotiq_2f85/robotiq_2f85_mesh.yaml": "555855ac7388c2e0",
+    "robotiq_2f85.yaml": "f7cae12808cecc68",
 }
 #: Keys a gripper file may have besides the :class:`GripperSpec` fields.
 _FILE_ONLY_KEYS = ("frame",)
@@ -1034,6 +1067,10 @@ def _build_into(spec: GripperSpec, parent, *, p: str, friction: str, model: mujo
     pad_t, _, pad_l = spec.pad_size
     fin_t, _, fin_l = spec.finger_size
     face_x = _pad_face_x(spec)
+    # The pads' torsional coefficient: derived (module docstring). "object": 0 on the pad, so the object geom's
+    # (attach_gripper writes mu_object * r_mean there) governs by MuJoCo's max rule; "pad": the pad's mu * r_mean.
+    mu_pad, roll = spec.pad_friction[0], spec.pad_friction[2]
+    pad_friction = (mu_pad, object_torsion(spec, mu_pad) if friction == "pad" else 0.0, roll)
     for side, sign in (("left", -1.0), ("right", 1.0)):
         # Body frame = the pad contact face's centre when fully open; the joint's qpos0 (= ref) is max_width / 2.
         jaw = base.add_body()
@@ -1062,10 +1099,10 @@ def _build_into(spec: GripperSpec, parent, *, p: str, friction: str, model: mujo
         if spec.pad_geom is None:
             pad = Box(size=spec.pad_size, pos=pad_pos)
             _add_collision_box(jaw, f"{p}{side}_pad", spec.pad_size, pad_pos, mode=friction, rgba=_PAD_RGBA,
-                               friction=spec.pad_friction, condim=spec.pad_condim)
+                               friction=pad_friction, condim=spec.pad_condim)
         else:
             pad = _in_jaw(spec.pad_geom, face_x, sign)
-            _add_shape(model, jaw, f"{p}{side}_pad", pad, mode=friction, rgba=_PAD_RGBA, friction=spec.pad_friction,
+            _add_shape(model, jaw, f"{p}{side}_pad", pad, mode=friction, rgba=_PAD_RGBA, friction=pad_friction,
                        condim=spec.pad_condim)
         if not spec.finger_geoms:
             links = [Box(size=spec.finger_size, pos=fin_pos)]
@@ -1176,14 +1213,58 @@ def attach_gripper(world: mujoco.MjSpec, spec: GripperSpec, *, name_prefix: str 
     :func:`build_gripper` (mocap body and TCP body coincide at the origin; move them with :func:`set_gripper_pose`).
     The gripper spec authors no physics options, so nothing conflicts at attach time: the world's options apply
     (call :func:`physics_options` on the world). Returns the attachment frame.
+
+    With ``friction="object"`` it also writes the pads' derived torsional friction into the world: every geom of a
+    body already in ``world`` that can touch the gripper gets torsional coefficient ``mu * pad_torsion_arm(spec)``
+    from its own sliding ``mu`` (:func:`set_pad_torsion`; module docstring), so each object of a scene has its own.
+    Objects are condim 3, so the value only acts in their condim-4 contacts with the pads.
     """
     if not name_prefix:
         raise ValueError("name_prefix: must be non-empty (it keeps gripper names apart from the scene's)")
+    if friction == "object":
+        set_pad_torsion(_object_geoms(world), spec)
     child = _gripper_model(spec, name_prefix="", friction=friction)
     frame = world.worldbody.add_frame()
     frame.name = f"{name_prefix}attach"
     world.attach(child, prefix=name_prefix, frame=frame)
     return frame
+
+
+def pad_torsion_arm(spec: GripperSpec) -> float:
+    """Torsional friction arm (m) of a pad: the mean distance of its contact face (``pad_size`` y x z, a rectangle
+    of half-sides p, q) from the face's centroid, the moment ``mu F r_mean`` that Coulomb friction under uniform
+    pressure resists about the face normal, per unit ``mu F`` (module docstring). Closed form of
+    ``(1 / (p q)) int_0^p int_0^q sqrt(x^2 + y^2) dy dx = (2 p q d + p^3 ln((q + d) / p) + q^3 ln((p + d) / q))
+    / (6 p q)`` with ``d = sqrt(p^2 + q^2)``; 0.3826 x the side of a square (Panda, 17.4 x 17.6 mm: 6.70 mm)."""
+    p, q = spec.pad_size[1] / 2.0, spec.pad_size[2] / 2.0
+    d = float(np.hypot(p, q))
+    return float((2.0 * p * q * d + p ** 3 * np.log((q + d) / p) + q ** 3 * np.log((p + d) / q)) / (6.0 * p * q))
+
+
+def object_torsion(spec: GripperSpec, mu: float) -> float:
+    """Torsional friction coefficient (m) of a contact of sliding friction ``mu`` with one of ``spec``'s pads:
+    ``mu * pad_torsion_arm(spec)`` (module docstring)."""
+    return float(mu) * pad_torsion_arm(spec)
+
+
+def _collides_with_gripper(geom: mujoco.MjsGeom) -> bool:
+    return bool((int(geom.contype) & GRIPPER_CONAFFINITY) or (int(geom.conaffinity) & GRIPPER_CONTYPE))
+
+
+def _object_geoms(world: mujoco.MjSpec) -> list[mujoco.MjsGeom]:
+    """The geoms of ``world``'s bodies (not the world body's static geoms: ground, supports) that collide with
+    gripper geoms."""
+    return [geom for body in world.bodies if body.name != "world" for geom in body.geoms
+            if _collides_with_gripper(geom)]
+
+
+def set_pad_torsion(targets, spec: GripperSpec) -> int:
+    """Give each object geom of ``targets`` (``MjsGeom``) the torsional friction its contacts with ``spec``'s pads
+    need: :func:`object_torsion` of its own sliding friction (module docstring). Returns how many were set."""
+    for geom in targets:
+        friction = list(geom.friction)
+        geom.friction = [friction[0], object_torsion(spec, friction[0]), friction[2]]
+    return len(targets)
 
 
 # ---------------------------------------------------------------------------------------------------------------

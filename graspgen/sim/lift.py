@@ -427,6 +427,19 @@ class LiftParams:
     a slip (code 4). Checked at every check interval, so the rollout stops when the object falls."""
     slip_rotation_tolerance: float = math.radians(20.0)
     """As ``slip_tolerance``, for the target's rotation relative to the TCP frame (rad)."""
+    firm_translation: float = 0.005
+    """Firm-hold tolerance (m): a success is also *firm* (:attr:`RolloutResult.firm`) when the target's centre of
+    mass never moved more than this in the TCP frame from the end of closing to the end of the disturbance
+    (:attr:`RolloutResult.max_rel_translation`, the largest displacement at any check, not only at the end). 5 mm
+    is the project's own threshold for "the object moved" (``max_target_shift``), under a third of the Panda's
+    17.6 mm pad face (a contact that moves less stays on the patch it closed on) and about the accuracy a
+    place-on-a-surface or drop-into-a-bin step plans with; a quarter of ``slip_tolerance`` (which labels a drop)."""
+    firm_rotation: float = math.radians(5.0)
+    """Firm-hold tolerance (rad) for the target's rotation relative to the TCP frame, likewise the largest over
+    the disturbance (:attr:`RolloutResult.max_rel_rotation`). 5 degrees is ``max_target_turn``, the project's
+    threshold for "the object turned"; it moves a point 10 cm from the pivot (ACRONYM objects' typical half size)
+    by 8.7 mm, the order of ``firm_translation``. A bottle held by its neck that swings 30-50 degrees round the
+    pinch and stays between the fingers is held (code 5) but not firm."""
 
     # -- mode and pacing --------------------------------------------------------------------------------------------
     gravity_until_closed: bool = False
@@ -459,7 +472,7 @@ class LiftParams:
         check_instance("graspgen", self.graspgen, GraspGenParams)
         for key in ("approach_distance", "width_margin", "lift_height", "hold_time", "shake_amplitude",
                     "shake_angle", "max_target_shift", "max_target_turn", "slip_tolerance",
-                    "slip_rotation_tolerance"):
+                    "slip_rotation_tolerance", "firm_translation", "firm_rotation"):
             object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0))
         for key in ("approach_speed", "approach_acceleration", "close_speed_tol", "close_timeout", "lift_speed",
                     "lift_acceleration", "shake_frequency", "timestep"):
@@ -555,6 +568,17 @@ class RolloutResult:
     target_pose_closed: np.ndarray = field(default_factory=lambda: np.full((4, 4), math.nan))
     """``(4, 4) float64`` world pose of the target body's frame (a scene object's mesh frame) at the end of closing,
     when the contacts were recorded (they map to the object frame exactly with it); NaN before closing ended."""
+    max_rel_translation: float = math.nan
+    """Largest displacement (m) of the target's centre of mass in the TCP frame (the simulated hand's frame, not
+    the world's) from the end of closing, over every check (each ``check_interval`` steps) of the disturbance
+    (``table``: lift, hold, shake; ``acronym``: shake and settle; ``graspgen``: the tugs) and its end. Unlike
+    ``rel_translation`` (end minus start) an object that swings and swings back is caught. NaN when no
+    disturbance started (a collision, or code 3)."""
+    max_rel_rotation: float = math.nan
+    """Largest rotation angle (rad) of the target relative to the TCP frame over the same checks."""
+    firm: bool = False
+    """Firm hold: ``code == 5`` (still in the hand) and ``max_rel_translation <= LiftParams.firm_translation`` and
+    ``max_rel_rotation <= LiftParams.firm_rotation``; False for every other outcome."""
 
     def __post_init__(self) -> None:
         for key in ("contact_points", "contact_normals", "contact_forces", "contact_fingers", "target_pose_closed"):
@@ -641,6 +665,21 @@ def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
 # ---------------------------------------------------------------------------------------------------------------
 # Simulator
 # ---------------------------------------------------------------------------------------------------------------
+
+
+class _Drift:
+    """The target's largest displacement (m) and rotation (rad) in the TCP frame since a reference pose, over the
+    poses given to :meth:`update` (read-only bookkeeping: it never touches the simulation)."""
+
+    def __init__(self, p0: np.ndarray, R0: np.ndarray) -> None:
+        self.p0, self.R0 = p0.copy(), R0.copy()
+        self.translation = 0.0
+        self.rotation = 0.0
+
+    def update(self, p: np.ndarray, R: np.ndarray) -> None:
+        dp = p - self.p0
+        self.translation = max(self.translation, math.sqrt(float(dp @ dp)))
+        self.rotation = max(self.rotation, _angle(self.R0, R))
 
 
 class _JawsStopped(Exception):
@@ -731,6 +770,16 @@ class LiftSimulator:
 
     Both protocols record the object's motion during closing and during the shake (``motion_*``, world frame) and
     its pose at the end of closing (``target_pose_closed``).
+
+    **Firm hold**, a second label beside the outcome, in every protocol: from the end of closing on, at every check
+    of the disturbance (``table``: lift, hold, shake; ``acronym``: shake, settle; ``graspgen``: tugs) and at the end,
+    the target's pose in the TCP frame (the simulated hand's) is compared with its pose when closing ended; the
+    largest displacement and rotation are :attr:`RolloutResult.max_rel_translation` / ``max_rel_rotation``, and a
+    success is firm (:attr:`RolloutResult.firm`) when both stay within ``firm_translation`` / ``firm_rotation``.
+    Hand frame, not world: the shake moves the hand, so a world-frame displacement over it (``motion_shaking_*``)
+    means motion in the hand only because the hand is back at its pose when the shake ends, and it misses an
+    object that swings round the pinch and swings back. Bookkeeping only: it reads the state and never changes a
+    step, so outcome codes and every other field are what they were without it.
 
     Parameters
     ----------
@@ -1029,10 +1078,12 @@ class LiftSimulator:
         R = R_tcp.T @ self._xmat[target].reshape(3, 3)
         return p, R
 
-    def _slipped(self, target: int, p0: np.ndarray, R0: np.ndarray) -> bool:
+    def _slipped(self, target: int, p0: np.ndarray, R0: np.ndarray, drift: _Drift) -> bool:
         """The target moved more than ``slip_tolerance`` or turned more than ``slip_rotation_tolerance`` in the TCP
-        frame since (``p0``, ``R0``) (squared distance and cosine: this runs at every check of lift/hold/shake)."""
+        frame since (``p0``, ``R0``) (squared distance and cosine: this runs at every check of lift/hold/shake);
+        ``drift`` records the pose (the firm-hold measures)."""
         p, R = self._relative(target)
+        drift.update(p, R)
         dp = p - p0
         return bool(dp @ dp > self._slip2 or (float(np.vdot(R0, R)) - 1.0) / 2.0 < self._cos_slip)
 
@@ -1194,7 +1245,7 @@ class LiftSimulator:
         closed_width = lift_gain = rel_t = rel_r = nan
         motion_closing = motion_shaking = (nan, nan)
         pose_closed = np.full((4, 4), nan)
-        shake_mark = None
+        shake_mark = drift = None
         contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
         self._gravity_view[:] = 0.0 if p.gravity_until_closed else self._gravity
         try:
@@ -1229,10 +1280,11 @@ class LiftSimulator:
             self._gravity_view[:] = self._gravity
             # 4. lift, hold, shake
             rel_p0, rel_R0 = self._relative(target)
+            drift = _Drift(rel_p0, rel_R0)
             z_obj0 = float(self._xipos[target][2])
 
             def check_slip(phase: str) -> None:
-                if self._slipped(target, rel_p0, rel_R0):
+                if self._slipped(target, rel_p0, rel_R0, drift):
                     raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
 
             self._move(pos + self._lift_offsets, None, "lifting", check_slip, observer)
@@ -1261,11 +1313,22 @@ class LiftSimulator:
         if shake_mark is not None:
             motion_shaking = self._motion(target, shake_mark)
         return self._result(code, phase, closed_width, lift_gain, (rel_t, rel_r), contacts, motion_closing,
-                            motion_shaking, pose_closed)
+                            motion_shaking, pose_closed, self._final_drift(target, drift))
+
+    def _final_drift(self, target: int, drift: _Drift | None) -> tuple[float, float]:
+        """(max translation m, max rotation rad) of the target in the TCP frame over the disturbance, the final pose
+        included; NaNs when closing was not finished (no reference)."""
+        if drift is None:
+            return math.nan, math.nan
+        drift.update(*self._relative(target))
+        return drift.translation, drift.rotation
 
     def _result(self, code, phase, closed_width, lift_gain, relative, contacts, motion_closing, motion_shaking,
-                pose_closed) -> RolloutResult:
-        """The :class:`RolloutResult` every protocol returns (``relative``: translation m, rotation rad)."""
+                pose_closed, drift) -> RolloutResult:
+        """The :class:`RolloutResult` every protocol returns (``relative``, ``drift``: translation m, rotation
+        rad; ``drift`` the largest over the disturbance)."""
+        p = self.params
+        firm = bool(code == Outcome.SUCCESS and drift[0] <= p.firm_translation and drift[1] <= p.firm_rotation)
         return RolloutResult(
             code=int(code), name=OUTCOME_NAMES[code], decided_in=phase, steps=self.steps,
             sim_time=self.steps * self._dt, closed_width=closed_width, lift_gain=lift_gain,
@@ -1273,7 +1336,7 @@ class LiftSimulator:
             contact_normals=contacts[1], contact_forces=contacts[2], contact_fingers=contacts[3],
             motion_closing_linear=motion_closing[0], motion_closing_angular=motion_closing[1],
             motion_shaking_linear=motion_shaking[0], motion_shaking_angular=motion_shaking[1],
-            target_pose_closed=pose_closed)
+            target_pose_closed=pose_closed, max_rel_translation=drift[0], max_rel_rotation=drift[1], firm=firm)
 
     def _jaws_on(self, roles: np.ndarray) -> tuple[bool, bool]:
         """(left jaw touches the target, right jaw touches the target) now; no contact forces (cheap)."""
@@ -1294,7 +1357,7 @@ class LiftSimulator:
         closed_width = rel_t = rel_r = nan
         motion_closing = motion_shaking = (nan, nan)
         pose_closed = np.full((4, 4), nan)
-        shake_mark = rel0 = None
+        shake_mark = rel0 = drift = None
         contacts = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int8))
         self._gravity_view[:] = 0.0
         try:
@@ -1315,8 +1378,10 @@ class LiftSimulator:
             if not (np.any(contacts[3] == _LEFT) and np.any(contacts[3] == _RIGHT)):
                 raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
             rel0 = self._relative(target)
+            drift = _Drift(*rel0)
 
             def check_held(phase: str) -> None:
+                drift.update(*self._relative(target))
                 if not any(self._jaws_on(roles)):
                     raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
 
@@ -1338,7 +1403,7 @@ class LiftSimulator:
         if shake_mark is not None:
             motion_shaking = self._motion(target, shake_mark)
         return self._result(code, phase, closed_width, nan, (rel_t, rel_r), contacts, motion_closing, motion_shaking,
-                            pose_closed)
+                            pose_closed, self._final_drift(target, drift))
 
     def _acronym_shake(self, pos, quat, R, target, check_held, observer) -> None:
         """``acronym`` (:class:`AcronymParams`): gravity on as configured, shake along the approach axis, then about

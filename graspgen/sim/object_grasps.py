@@ -46,6 +46,10 @@ or has tried ``max_candidates``:
    fewer than ``target_positives`` successes are kept, a failure while fewer than ``target_negatives`` failures
    are (a collision at placement, outcomes 0-2, only while collisions are fewer than ``collision_share`` of
    ``target_negatives``), and the loop stops when both targets are met or ``max_candidates`` rollouts were made.
+   "Success" is the ``label`` setting's: ``held`` (default: outcome 5, the object still between the fingers,
+   ACRONYM's label, so the set is what it was before the firm label existed) or ``firm`` (outcome 5 with the
+   object's motion in the hand within the firm-hold tolerances, :mod:`graspgen.sim.lift`; held-but-not-firm
+   grasps are then negatives). Both labels are in every row (``success``, ``firm``).
 
 3. **Labels per kept row**: the rollout's outcome, ACRONYM's four motion measures, the finger contacts at the end of
    closing in the object frame (mapped with the object's pose when closing ended, so exactly), the Ferrari-Canny
@@ -76,7 +80,12 @@ open_width              float64         jaw opening the protocol used, m
 outcome                 int8            0-5 (:class:`graspgen.sim.lift.Outcome`)
 outcome_name            string          its name
 decided_in              string          protocol phase that decided it
-success                 bool            ``outcome == 5``
+success                 bool            ``outcome == 5``: still in the hand (ACRONYM's ``object_in_gripper``)
+firm                    bool            firm hold: a success whose motion in the hand stayed within
+                                        ``lift.firm_translation`` / ``firm_rotation`` (:mod:`graspgen.sim.lift`)
+max_rel_translation     float64         largest displacement of the object in the hand (TCP frame) during the
+                                        shake / tugs, from the end of closing, m (NaN if none ran)
+max_rel_rotation        float64         largest rotation of the object in the hand over the same span, rad
 closed_width            float64         pad separation when closing ended, m (NaN if not reached)
 motion_closing_linear   float64         object displacement while the fingers closed, m
 motion_closing_angular  float64         object rotation while the fingers closed, rad
@@ -90,7 +99,8 @@ epsilon                 float64         Ferrari-Canny epsilon of those contacts 
                                         success with contacts
 robustness_n            int32           perturbed copies rolled out (0 unless a success and
                                         ``num_perturbations > 0``)
-robustness              float64         their success fraction; NaN when ``robustness_n`` is 0
+robustness              float64         their success fraction (positives by ``label``); NaN when
+                                        ``robustness_n`` is 0
 ======================  ==============  =====================================================================
 """
 
@@ -117,6 +127,7 @@ from graspgen.validation import check, check_instance, check_int, check_number, 
 
 __all__ = [
     "CANDIDATES",
+    "LABELS",
     "PROTOCOLS",
     "SCHEMA",
     "ObjectGraspsParams",
@@ -131,6 +142,9 @@ __all__ = [
 
 PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen")
 """The protocols an object-centric set may use: the free-space ones of :data:`graspgen.sim.lift.PROTOCOLS`."""
+
+LABELS: tuple[str, ...] = ("held", "firm")
+"""Values of :attr:`ObjectGraspsParams.label`: which label makes a positive."""
 
 CANDIDATES: tuple[str, ...] = ("antipodal", "near_miss")
 """Values of the ``candidate`` column."""
@@ -153,6 +167,9 @@ SCHEMA = pa.schema(
         ("outcome_name", pa.string()),
         ("decided_in", pa.string()),
         ("success", pa.bool_()),
+        ("firm", pa.bool_()),
+        ("max_rel_translation", pa.float64()),
+        ("max_rel_rotation", pa.float64()),
         ("closed_width", pa.float64()),
         ("motion_closing_linear", pa.float64()),
         ("motion_closing_angular", pa.float64()),
@@ -235,6 +252,13 @@ class ObjectGraspsParams:
     TCP frame; the robustness stage's 5 degrees)."""
     epsilon: EpsilonParams = dataclasses.field(default_factory=EpsilonParams)
     """Contact model and friction of the epsilon (``epsilon.friction`` null: the object's friction)."""
+    label: str = "held"
+    """Which label makes a positive (a kept success, a near miss's parent, a robustness copy's win): ``held``
+    (default; outcome 5, the object still between the fingers after the disturbance: ACRONYM's
+    ``object_in_gripper``, so the set's positives are ACRONYM's and the ACRONYM export's ``object_in_gripper`` is
+    this) or ``firm`` (also the object's motion in the hand within ``lift.firm_translation`` / ``firm_rotation``;
+    a held-but-not-firm grasp is then kept as a negative). The other label is stored in every row either way
+    (``success``, ``firm``)."""
 
     def __post_init__(self) -> None:
         check("gripper", isinstance(self.gripper, str) and bool(self.gripper),
@@ -278,6 +302,11 @@ class ObjectGraspsParams:
         for key in ("perturbation_translation", "perturbation_rotation"):
             object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0))
         check_instance("epsilon", self.epsilon, EpsilonParams)
+        check("label", self.label in LABELS, f"be one of {', '.join(LABELS)}", self.label)
+
+    def positive(self, result: RolloutResult) -> bool:
+        """Whether ``result`` is a positive under :attr:`label` (``held``: outcome 5; ``firm``: ``result.firm``)."""
+        return bool(result.firm) if self.label == "firm" else result.code == Outcome.SUCCESS
 
     @property
     def near_misses_per_batch(self) -> int:
@@ -536,7 +565,7 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
             tried += 1
             counts[result.code] += 1
             by_kind[kind][result.code] += 1
-            if result.code == Outcome.SUCCESS:
+            if params.positive(result):
                 if kind == CANDIDATES[0]:
                     good_pose.append(T)
                     good_width.append(w)
@@ -558,7 +587,7 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
     ep = params.epsilon
     mu = friction if ep.friction is None else float(ep.friction)
     n_copies = params.num_perturbations
-    success_rows = [j for j, (_, _, _, r) in enumerate(kept) if r.code == Outcome.SUCCESS]
+    success_rows = [j for j, (_, _, _, r) in enumerate(kept) if params.positive(r)]
     noise = rng.standard_normal((len(success_rows), n_copies, 6)) if n_copies else None
     points, normals, epsilon = [], [], np.full(len(kept), math.nan)
     for j, (_, _, _, r) in enumerate(kept):
@@ -576,7 +605,7 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
         for row, z in zip(success_rows, noise):
             T = kept[row][1]
             Ts = perturbed_poses(T, params.perturbation_translation * z[:, :3], params.perturbation_rotation * z[:, 3:])
-            wins = sum(simulator.rollout(Tc, kept[row][2], body).code == Outcome.SUCCESS for Tc in Ts)
+            wins = sum(params.positive(simulator.rollout(Tc, kept[row][2], body)) for Tc in Ts)
             robust_n[row], robust[row] = n_copies, wins / n_copies
             copies += n_copies
 
@@ -638,6 +667,9 @@ def _table(name: str, params: ObjectGraspsParams, opening: float, kept: list, po
         "outcome_name": pa.array([r.name for r in results], pa.string()),
         "decided_in": pa.array([r.decided_in for r in results], pa.string()),
         "success": pa.array(codes == Outcome.SUCCESS, pa.bool_()),
+        "firm": pa.array([r.firm for r in results], pa.bool_()),
+        "max_rel_translation": num("max_rel_translation"),
+        "max_rel_rotation": num("max_rel_rotation"),
         "closed_width": num("closed_width"),
         "motion_closing_linear": num("motion_closing_linear"),
         "motion_closing_angular": num("motion_closing_angular"),

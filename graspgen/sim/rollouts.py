@@ -24,6 +24,11 @@ closed_width         float64             pad separation when closing ended, m (N
 lift_gain            float64             how far the object rose, m (NaN if not reached)
 rel_translation      float64             object displacement relative to the TCP after closing, m
 rel_rotation         float64             object rotation relative to the TCP after closing, rad
+firm                 bool                firm hold: outcome 5 and the object's motion in the hand within
+                                         ``lift.firm_translation`` / ``firm_rotation`` (false when not simulated)
+max_rel_translation  float64             largest displacement of the object in the TCP frame from the end of
+                                         closing over lift, hold and shake, m (NaN if not reached)
+max_rel_rotation     float64             largest rotation relative to the TCP over the same span, rad
 contact_points       list<float64>       finger-object contacts at the end of closing, world frame, k*3 values
 contact_normals      list<float64>       their normals, pointing into the object, k*3 values
 contact_forces       list<float64>       their normal forces, N, k values
@@ -75,6 +80,9 @@ SCHEMA = pa.schema(
         ("lift_gain", pa.float64()),
         ("rel_translation", pa.float64()),
         ("rel_rotation", pa.float64()),
+        ("firm", pa.bool_()),
+        ("max_rel_translation", pa.float64()),
+        ("max_rel_rotation", pa.float64()),
         ("contact_points", pa.list_(pa.float64())),
         ("contact_normals", pa.list_(pa.float64())),
         ("contact_forces", pa.list_(pa.float64())),
@@ -135,6 +143,9 @@ def results_table(grasps: pa.Table, results: list[RolloutResult | None]) -> pa.T
         "lift_gain": pa.array(num("lift_gain")),
         "rel_translation": pa.array(num("rel_translation")),
         "rel_rotation": pa.array(num("rel_rotation")),
+        "firm": pa.array([r is not None and r.firm for r in results], pa.bool_()),
+        "max_rel_translation": pa.array(num("max_rel_translation")),
+        "max_rel_rotation": pa.array(num("max_rel_rotation")),
         "contact_points": listed("contact_points", pa.float64()),
         "contact_normals": listed("contact_normals", pa.float64()),
         "contact_forces": listed("contact_forces", pa.float64()),

@@ -1,0 +1,35 @@
+"""The grasp evaluator: a small PointNet (the 6-DOF GraspNet evaluator / PointNetGPD family). Needs torch.
+
+Sizes: a shared per-point MLP 4 -> 64 -> 128 -> 256 (ReLU after each layer), a max-pool over the K points, the
+width appended (257), a head 257 -> 128 -> 1 (ReLU between): 74,817 parameters. Lengths enter divided by
+``length_scale`` (m; half the gripper's open width, so the closing volume spans about [-1, 1] along x).
+"""
+
+from __future__ import annotations
+
+try:
+    import torch
+except ImportError:  # one clear error naming the install, not a bare ModuleNotFoundError
+    from graspgen.learn import require_torch
+
+    require_torch()
+    raise
+from torch import nn  # noqa: E402
+
+__all__ = ["PointNetEvaluator"]
+
+
+class PointNetEvaluator(nn.Module):
+    """forward(points (b, K, 4) float32, width (b,) float32 m) -> (b,) success logits."""
+
+    def __init__(self, length_scale: float = 0.04) -> None:
+        super().__init__()
+        self.length_scale = float(length_scale)
+        self.point_mlp = nn.Sequential(nn.Linear(4, 64), nn.ReLU(), nn.Linear(64, 128), nn.ReLU(),
+                                       nn.Linear(128, 256), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(257, 128), nn.ReLU(), nn.Linear(128, 1))
+
+    def forward(self, points: torch.Tensor, width: torch.Tensor) -> torch.Tensor:
+        xyz = points[..., :3] / self.length_scale
+        h = self.point_mlp(torch.cat([xyz, points[..., 3:4]], dim=-1)).amax(dim=1)
+        return self.head(torch.cat([h, (width / self.length_scale)[:, None]], dim=1)).squeeze(1)
