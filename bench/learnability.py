@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import fnmatch
 import hashlib
 import json
 import os
@@ -218,11 +219,13 @@ def main() -> None:
     ap.add_argument("--curve", action="store_true", help="also the learning curve of source (b)")
     ap.add_argument("--pick", type=int, default=0, metavar="N",
                     help="also gen probe pick on every validation mesh: top 10 of N candidates, network (c)")
+    ap.add_argument("--exclude", nargs="*", default=[], metavar="PATTERN",
+                    help="leave out the files whose stem matches (fnmatch), from every source alike")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=HERE / "results_learnability.json")
     args = ap.parse_args()
 
-    files = _files(args.learn)
+    files = [f for f in _files(args.learn) if not any(fnmatch.fnmatch(f.stem, p) for p in args.exclude)]
     if args.write_manifest:
         print(f"{write_manifest(files, args.write_manifest)} training files -> {args.write_manifest}")
         return
@@ -248,8 +251,8 @@ def main() -> None:
     table = cross_source({"a_flex": flex_train, "b_sim": sim_train, "b_firm": firm_train, "c_ours": ours}, valid,
                          args.seed, models)
     _print_table(table)
-    result = {"learn": str(args.learn), "per_object": args.per_object, "valid_fraction": VALID_FRACTION,
-              "salt": SALT, "train_objects": sorted(s.name for s in flex_train),
+    result = {"learn": str(args.learn), "per_object": args.per_object, "excluded": args.exclude,
+              "valid_fraction": VALID_FRACTION, "salt": SALT, "train_objects": sorted(s.name for s in flex_train),
               "valid_objects": sorted(s.name for s in flex_valid), "cross_source": table,
               "label_seconds": label_seconds, "platform": platform.platform(), "cpus": os.cpu_count()}
     if args.pick:
