@@ -28,7 +28,13 @@ def canonical_json(obj: Any) -> str:
     return json.dumps(_jsonable(obj), sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
+_PLAIN = (str, int, bool, type(None))
+"""Values that are their own JSON form (most of a key's parts are strings): returned before the general walk."""
+
+
 def _jsonable(obj: Any) -> Any:
+    if type(obj) in _PLAIN:
+        return obj
     obj = to_dict(obj)
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
@@ -55,6 +61,11 @@ def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
+def params_digest(params: Any) -> str:
+    """The ``params`` part of a key: sha256 of the canonical JSON of a stage's params."""
+    return sha256_text(canonical_json(params))
+
+
 def key_parts(
     *,
     stage: str,
@@ -66,6 +77,7 @@ def key_parts(
     input_hashes: dict[str, str],
     code: dict[str, str] | None = None,
     seed: int = 0,
+    params_hash: str | None = None,
 ) -> dict[str, str]:
     """The hashed components of a task key, kept apart so ``gen status`` can say which one changed.
 
@@ -73,11 +85,12 @@ def key_parts(
     (``code:<path>``) and per package (``package:<name>``), so a change names the file or the package.
     ``seed`` is the run's seed (``run.seed``): a ``seed`` part when not 0, none at 0, so seed 0 gives the keys of
     runs made before the seed existed. It reaches the seed key too (:func:`seed_key` keeps every part but code).
+    ``params_hash``, when given, is :func:`params_digest` of ``params`` computed once for all of a stage's tasks.
     """
     return {
         "scheme": str(KEY_SCHEME),
         "stage": f"{stage}@{version}",
-        "params": sha256_text(canonical_json(params)),
+        "params": params_hash if params_hash is not None else params_digest(params),
         "task": sha256_text(canonical_json({"id": task_id, "payload": payload})),
         "upstream": sha256_text(canonical_json(upstream)),
         "inputs": sha256_text(canonical_json(input_hashes)),

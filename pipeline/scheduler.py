@@ -11,6 +11,7 @@ import contextlib
 import ctypes
 import dataclasses
 import errno
+import functools
 import gc
 import multiprocessing
 import os
@@ -28,7 +29,7 @@ import joblib
 from pipeline.config import RunConfig, to_yaml
 from pipeline.errors import ConfigError, GenError, StageError
 from pipeline.fingerprint import stage_fingerprint
-from pipeline.keys import changed_parts, key_parts, rng_for_key, seed_key, sha256_file, task_key
+from pipeline.keys import changed_parts, key_parts, params_digest, rng_for_key, seed_key, sha256_file, task_key
 from pipeline.stage import RunContext, Stage, Task, Upstream, stage_waves, topological_order
 from pipeline.store import (
     Entry,
@@ -164,6 +165,7 @@ def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> lis
         seen[t.id] = t
     file_hashes: dict[str, str] = {}
     code = stage_fingerprint(type(stage).__module__)
+    params_hash = params_digest(params)  # the same for every task: hashed once, not once per task
     planned = []
     for t in tasks:
         hashes = {}
@@ -175,6 +177,7 @@ def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> lis
             stage=stage.name,
             version=stage.version,
             params=params,
+            params_hash=params_hash,
             task_id=t.id,
             payload=t.payload,
             upstream=upstream.keys(t.needs),
@@ -216,15 +219,49 @@ def _find_malloc_trim() -> Any:
 _MALLOC_TRIM = _find_malloc_trim()
 
 
+GC_MARGIN = 100 * 2**20
+"""Bytes of resident growth over a worker's first settled size after which it also collects garbage."""
+
+_settled_rss: int | None = None
+"""This worker's resident size after its first task (and a collection), or None before it."""
+
+
+def resident_bytes() -> int | None:
+    """This process's resident set size in bytes (Linux ``/proc``), or None where it cannot be read cheaply."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def return_freed_memory() -> bool:
-    """Collect garbage and give the heap pages freed since back to the OS; False where the C library cannot.
+    """Give the heap pages freed since back to the OS, and collect garbage when the worker has grown; False where
+    the C library cannot trim.
 
     Why: glibc keeps freed blocks in its heap, so a worker's resident size climbs to the highest peak any of its
     tasks reached and stays there. loky reads that as a leak (300 MB above the worker's size after its first task),
     restarts the worker and warns "A worker stopped while some jobs were given to the executor ... memory leak"
     (seen in ``make dataset``, in the robustness stage). Measured on ten of the default dataset's robustness tasks
-    in one process: 290-390 MB resident after each with ``gc.collect()`` alone, 255-264 MB after this."""
-    gc.collect()
+    in one process: 290-390 MB resident after each with ``gc.collect()`` alone, 255-264 MB after this.
+
+    The trim costs microseconds; a full ``gc.collect()`` costs 40 ms in a worker that imported the grasp library
+    (bench/bench_engine.py: it was most of the engine's per-task overhead), so it runs only after the first task
+    and when the worker stands more than :data:`GC_MARGIN` above its settled size (Python's own generational
+    collection still runs as usual)."""
+    global _settled_rss
+    trimmed = _trim_heap()
+    rss = resident_bytes()
+    if rss is None or _settled_rss is None or rss > _settled_rss + GC_MARGIN:
+        gc.collect()
+        trimmed = _trim_heap()
+        rss = resident_bytes()
+        if _settled_rss is None:
+            _settled_rss = rss
+    return trimmed
+
+
+def _trim_heap() -> bool:
     if _MALLOC_TRIM is None:
         return False
     _MALLOC_TRIM(0)
@@ -501,9 +538,10 @@ class _StageRun:
     manifest: Manifest
     upstream: Upstream
 
-    @property
-    def keys(self) -> set[str]:
-        return {p.key for p in self.planned}
+    @functools.cached_property
+    def keys(self) -> frozenset[str]:
+        """The planned keys (computed once: a stage's finish tests every manifest entry against them)."""
+        return frozenset(p.key for p in self.planned)
 
 
 def _start_stage(

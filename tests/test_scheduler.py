@@ -434,3 +434,27 @@ def test_return_freed_memory_gives_a_fragmented_heap_back_to_the_os():
     after = process.memory_info().rss
     assert before - after > 50 * 2**20, (before, after)
     assert len(live) == 12_500
+
+
+def test_return_freed_memory_collects_garbage_only_when_the_worker_has_grown(monkeypatch):
+    # A full collection costs tens of ms in a worker that imported the grasp library: after the first task it
+    # runs only once the worker stands more than GC_MARGIN above its settled size.
+    collections = []
+    sizes = iter([500, 400, 420, 400 + scheduler.GC_MARGIN + 1, 410])
+    monkeypatch.setattr(scheduler, "_settled_rss", None)
+    monkeypatch.setattr(scheduler, "resident_bytes", lambda: next(sizes))
+    monkeypatch.setattr(scheduler.gc, "collect", lambda: collections.append(1))
+    return_freed_memory()  # first task: collects, settles at 400
+    assert len(collections) == 1 and scheduler._settled_rss == 400
+    return_freed_memory()  # 420: within the margin, no collection
+    assert len(collections) == 1
+    return_freed_memory()  # grown past the margin: collects
+    assert len(collections) == 2 and scheduler._settled_rss == 400
+
+
+def test_resident_bytes_reads_this_process():
+    rss = scheduler.resident_bytes()
+    if rss is None:
+        pytest.skip("no /proc/self/statm here")
+    psutil = pytest.importorskip("psutil")
+    assert abs(rss - psutil.Process().memory_info().rss) < 64 * 2**20
