@@ -38,6 +38,11 @@ The candidates (others as ``CHEAP_COACD``: resolution 1000, 30 MCTS iterations, 
   rebuilt as the 0.55-voxel level set of a grid of that many cells per axis, i.e. dilated by about a voxel's half
   (relative to size too): a 3 mm mug wall comes out a few mm thicker at 30.
 
+Since issue 24 every candidate also carries ``CoacdParams``' newer defaults: ``preprocess_mode="unless_watertight"``
+(no voxel rebuild of a mesh that is closed after repair, so ``preprocess_resolution`` only matters for open or
+self-intersecting input the repair leaves open), the near-convex skip and the slack-judged refinement (criterion
+``slack_p95`` = the 1 mm here); results recorded before that are under other cache keys and are recomputed.
+
 CoACD is not monotone in these: a lower threshold can end with fewer, larger parts (merged down to the hull bound,
 or left unrefined), so every candidate is measured rather than inferred.
 

@@ -33,6 +33,12 @@ Parallelism: the grasps are cut into ``jobs`` contiguous chunks run by joblib wo
 compiles its own model once (a compiled model is never pickled) and rolls its chunk out in order, so the output is
 in input order and, like every rollout (:mod:`graspgen.sim.lift`), independent of ``jobs``.
 
+Backends (``backend``): ``mujoco``, the CPU rollouts above (the reference; bit-identical across runs and ``jobs``),
+or ``warp`` (:mod:`graspgen.sim.warp_backend`, the ``warp`` extra): the same model on MuJoCo Warp, ``warp.nworld``
+grasps at once in one process (a GPU, or Warp's CPU device), for the ``acronym`` and ``graspgen`` protocols; float32
+with a contact order that is not fixed, so a grasp on the edge of a rule can be labelled differently than on the CPU
+or in another warp run (``bench/bench_warp.py`` measures both). The table's metadata names the backend.
+
 Output: one row per input grasp, in input order (:data:`SCHEMA`):
 
 ===================  ==============  =====================================================================
@@ -131,6 +137,7 @@ from graspgen.sim.scene_model import (
     object_poses,
     settle,
 )
+from graspgen.sim.warp_backend import WarpLiftSimulator, WarpParams, check_backend
 from graspgen.validation import check_instance, check_number, check_positive_int, check_transforms
 
 __all__ = [
@@ -428,6 +435,14 @@ def _roll_out_chunk(world: _World, T_world: np.ndarray, widths: np.ndarray) -> l
     return [simulator.rollout(T, float(w), body) for T, w in zip(T_world, widths)]
 
 
+def _roll_out_warp(world: _World, T_world: np.ndarray, warp: WarpParams | None) -> list[RolloutResult]:
+    """All grasps on the warp backend, in one model of ``warp.nworld`` worlds (input order)."""
+    if len(T_world) == 0:
+        return []
+    simulator = WarpLiftSimulator(_world_spec(world).compile(), world.lift, warp)  # as EvaluationWorld's
+    return simulator.rollouts(T_world, object_body_name(0, world.obj.name))
+
+
 def _world_spec(world: _World, visual: tuple[np.ndarray, np.ndarray] | None = None) -> mujoco.MjSpec:
     """The world as an MjSpec with the gripper attached; ``visual`` ``(vertices (v, 3) m, faces (f, 3))`` adds the
     object's visual mesh (drawn only: the physics and the joints are those of the model without it)."""
@@ -466,6 +481,12 @@ class EvaluationWorld:
         """The world compiled with the gripper, in a fresh model: rolls a grasp out as :func:`evaluate_grasps` did."""
         return LiftSimulator(_world_spec(self.world).compile(), self.world.lift)
 
+    def warp_simulator(self, warp: WarpParams | None = None) -> WarpLiftSimulator:
+        """The same world on the warp backend (:class:`graspgen.sim.warp_backend.WarpLiftSimulator`, batches of
+        ``warp.nworld`` grasps): ``warp_simulator().rollouts(T_world, target_body)`` rolls them out as
+        :func:`evaluate_grasps` with ``backend="warp"`` does."""
+        return WarpLiftSimulator(_world_spec(self.world).compile(), self.world.lift, warp)
+
     def visual_spec(self) -> mujoco.MjSpec:
         """The world with the gripper and the object's visual mesh (for rendering); its joints are the simulator's,
         so a recorded ``qpos`` poses it."""
@@ -492,6 +513,8 @@ def evaluate_grasps(
     cache_dir: str | Path | None = None,
     robustness: RobustnessParams | None = None,
     rng: np.random.Generator | None = None,
+    backend: str = "mujoco",
+    warp: WarpParams | None = None,
 ) -> pa.Table:
     """Roll out grasps given as TCP poses on one object; one output row per grasp, in input order.
 
@@ -525,6 +548,13 @@ def evaluate_grasps(
     rng : numpy.random.Generator, optional
         Generator of the copies' draws (``robustness`` only); None: seeded by :func:`content_seed` from the poses,
         widths and settings.
+    backend : str
+        ``mujoco`` (the CPU, ``jobs`` workers) or ``warp`` (MuJoCo Warp, :mod:`graspgen.sim.warp_backend`: all
+        grasps in batches of ``warp.nworld`` parallel worlds in one process; ``acronym`` and ``graspgen`` protocols;
+        float32, so labels on the edge of a rule can differ from the CPU's and between runs). The robustness copies
+        always run on the CPU.
+    warp : WarpParams, optional
+        Device and batch of the warp backend; None: ``WarpParams()``.
 
     Returns
     -------
@@ -551,15 +581,22 @@ def evaluate_grasps(
     ew = evaluation_world(mesh_path, scale, T_tcp, widths, gripper, params, free_space=free_space,
                           protocol=protocol, cache_dir=cache_dir)
     world, T_world, width = ew.world, ew.T_world, ew.width
+    check_backend(backend, world.lift.protocol)
     n = len(T_world)
     jobs = (os.cpu_count() or 1) if jobs <= 0 else int(jobs)
-    chunks = [c for c in np.array_split(np.arange(n), max(1, min(jobs, n))) if len(c)]
-    parts = Parallel(n_jobs=len(chunks) or 1)(
-        delayed(_roll_out_chunk)(world, T_world[c], width[c]) for c in chunks
-    )
-    results = [r for part in parts for r in part]
+    if backend == "warp":
+        results = _roll_out_warp(world, T_world, warp)
+    else:
+        chunks = [c for c in np.array_split(np.arange(n), max(1, min(jobs, n))) if len(c)]
+        parts = Parallel(n_jobs=len(chunks) or 1)(
+            delayed(_roll_out_chunk)(world, T_world[c], width[c]) for c in chunks
+        )
+        results = [r for part in parts for r in part]
     table = _table(ew.T_tcp, width, list(ew.source), results, world.obj.pose)
     info = dict(ew.info)
+    info["backend"] = backend
+    if backend == "warp":
+        info["warp"] = (warp or WarpParams()).to_dict()
     if robustness is not None:
         robustness = dataclasses.replace(robustness, radius=False)
         if rng is None:

@@ -430,6 +430,17 @@ def evaluate(
             min=0,
         ),
     ] = 0,
+    backend: Annotated[
+        str,
+        typer.Option("--backend", help="mujoco (the CPU, --jobs workers) or warp (MuJoCo Warp: many grasps at once "
+                     "on a GPU, or Warp's CPU device; acronym and graspgen protocols; needs the warp extra)."),
+    ] = "mujoco",
+    device: Annotated[
+        str | None, typer.Option("--device", help="With --backend warp: Warp device (cpu, cuda:0; default: Warp's).")
+    ] = None,
+    worlds: Annotated[
+        int, typer.Option("--worlds", help="With --backend warp: grasps rolled out at once (parallel worlds).", min=1)
+    ] = 1024,
     config: ConfigOpt = None,
     set_: SetOpt = None,
 ) -> None:
@@ -463,6 +474,7 @@ def evaluate(
     )
     from graspgen.io.files import write_parquet
     from graspgen.sim.grippers import load_gripper
+    from graspgen.sim.warp_backend import WarpParams
 
     console = Console(stderr=True)
     try:
@@ -478,7 +490,8 @@ def evaluate(
         noise = dataclasses.replace(cfg.robustness, num_perturbations=robustness) if robustness else None
         table = evaluate_grasps(
             loaded.mesh_path, loaded.scale, loaded.T_tcp, loaded.widths, gripper, params, free_space=not support,
-            jobs=jobs, cache_dir=cfg.run.cache_dir, robustness=noise,
+            jobs=jobs, cache_dir=cfg.run.cache_dir, robustness=noise, backend=backend,
+            warp=WarpParams(device=device, nworld=worlds) if backend == "warp" else None,
         )
     except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))
@@ -493,6 +506,7 @@ def evaluate(
         console.print(f"warning: {warning}", highlight=False, markup=False)
     counts = ", ".join(f"{name} {n}" for name, n in outcome_counts(table).items() if n)
     mode = "support plane" if support else f"{protocol or 'table'} protocol, free space"
+    mode += f", {backend} backend" if backend != "mujoco" else ""
     console.print(f"{len(table)} grasps ({mode}): {counts}", highlight=False)
     held, firm = int(np.sum(table.column("outcome").to_numpy() == 5)), int(np.sum(table.column("firm").to_numpy()))
     console.print(f"labels: held {held}, firm {firm} (held and within the firm-hold tolerances)", highlight=False)

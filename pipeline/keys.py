@@ -9,6 +9,7 @@ changes the key of that stage and of everything downstream, nothing else.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -28,6 +29,11 @@ def canonical_json(obj: Any) -> str:
     return json.dumps(_jsonable(obj), sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
+KEY_OMIT_DEFAULT = "key_omit_default"
+"""Field metadata flag: a settings field added after datasets were made with its section, left out of the key
+while it holds its default (``dataclasses.field(default=None, metadata={KEY_OMIT_DEFAULT: True})``), so adding it
+keeps the keys and random draws of every config that does not set it."""
+
 _PLAIN = (str, int, bool, type(None))
 """Values that are their own JSON form (most of a key's parts are strings): returned before the general walk."""
 
@@ -35,6 +41,8 @@ _PLAIN = (str, int, bool, type(None))
 def _jsonable(obj: Any) -> Any:
     if type(obj) in _PLAIN:
         return obj
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj) if not _omitted(obj, f)}
     obj = to_dict(obj)
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
@@ -45,6 +53,18 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     return obj
+
+
+def _omitted(obj: Any, field: dataclasses.Field) -> bool:
+    if not field.metadata.get(KEY_OMIT_DEFAULT):
+        return False
+    if field.default is not dataclasses.MISSING:
+        default = field.default
+    elif field.default_factory is not dataclasses.MISSING:
+        default = field.default_factory()
+    else:
+        return False
+    return getattr(obj, field.name) == default
 
 
 def sha256_text(text: str) -> str:

@@ -286,7 +286,7 @@ def execute_task(
 def _execute_task(
     stage: Stage, planned: PlannedTask, params: Any, upstream: Upstream, stage_dir: Path, ctx: RunContext
 ) -> Entry:
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     task, key = planned.task, planned.key
     final = shard_path(stage_dir, key, stage.ext)
     try:
@@ -301,6 +301,7 @@ def _execute_task(
             sha256=sha256_file(final),
             bytes=final.stat().st_size,
             seconds=round(time.perf_counter() - start, 4),
+            cpu_seconds=round(time.process_time() - cpu_start, 4),
             parts=planned.parts,
             meta=meta,
             seed=planned.seed,

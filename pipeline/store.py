@@ -67,6 +67,9 @@ class Entry:
     """Shard size in bytes."""
     seconds: float = 0.0
     """Wall time the task took, in seconds."""
+    cpu_seconds: float = 0.0
+    """CPU time the task's process spent on it, in seconds (what a cost model needs: wall time grows with the
+    machine's load, CPU time does not). 0 in manifests written before the field existed."""
     parts: dict[str, str] = dataclasses.field(default_factory=dict)
     """The key's components (see :func:`pipeline.keys.key_parts`), to explain staleness."""
     meta: dict[str, Any] = dataclasses.field(default_factory=dict)

@@ -6,6 +6,7 @@ import dataclasses
 
 from graspgen.quality.epsilon import MetricsParams
 from graspgen.quality.robustness import RobustnessParams
+from graspgen.sim.grippers import load_gripper
 from graspgen.sim.object_grasps import ObjectGraspsParams
 from graspgen.sim.placed_grasps import PlacedGraspsParams
 from graspgen.sim.rollouts import RolloutsParams
@@ -65,4 +66,21 @@ class Config:
             f"equal rollouts.lift.width_margin ({lift.width_margin}): the pre-filter checks the jaws as the rollout "
             "opens them",
             prefilter.width_margin,
+        )
+        self._check_procedural_fits()
+
+    def _check_procedural_fits(self) -> None:
+        # Procedural objects are sized for a gripper: their thinnest extent must fit between the open jaws of every
+        # gripper the config grasps them with.
+        procedural = self.objects.procedural
+        if procedural is None:
+            return
+        widths = {g: load_gripper(g).max_width for g in (self.grasps.gripper, self.object_grasps.gripper)}
+        gripper, width = min(widths.items(), key=lambda item: item[1])
+        check(
+            "objects.procedural.max_grasp_width",
+            procedural.max_grasp_width < width,
+            f"be < the largest opening of {gripper} ({width} m, grasps.gripper / object_grasps.gripper), so every "
+            "object fits between the open jaws",
+            procedural.max_grasp_width,
         )

@@ -9,7 +9,11 @@ specific). Scenes are sorted by id and grasps by id within a scene. Only scenes 
 are included; the others are named in the manifest meta and in the card. The task's shard is that table, written
 deterministically (zstd level 3, dictionary-encoded strings, statistics on; no timestamps) with row groups that hold
 whole scenes, packed up to ``dataset.row_group_rows`` rows: a reader that wants one scene touches one row group, and
-the footer stays small with many scenes (one row group per scene would make it grow with every scene).
+the footer stays small with many scenes (one row group per scene would make it grow with every scene). The shards
+are read one scene at a time, in scene id order, and written as row groups fill
+(:class:`graspgen.io.row_groups.GroupedParquetWriter`): the task holds one row group, not the table, and so do the
+object-set tasks (one shard at a time, by task id). The card's statistics are running counts over the published
+files' row groups (:mod:`graspgen.io.card_tally`) and ``gen validate`` checks the table one row group at a time.
 
 After the task has been committed, :meth:`DatasetStage.publish` lays out ``OUT/dataset/`` (each file atomically;
 shards as hard links, copies where links are not possible)::
@@ -115,10 +119,12 @@ from graspgen.io.card import (
     package_versions,
     render_card,
 )
+from graspgen.io.card_grasps import scene_grasp_counts
 from graspgen.io.dataset_table import (
     FORMAT,
     META_KEY,
     TABLES,
+    GroupedParquetWriter,
     check_table,
     dataset_dir,
     join_scene,
@@ -295,31 +301,29 @@ class DatasetStage(GraspStage):
                 + (f"e.g. {next(iter(left_out))}: {next(iter(left_out.values()))}" if left_out else "no scenes at all")
             )
         key_stage = PROVENANCE_STAGE if PROVENANCE_STAGE in self.tables else self.tables[-1]
-        merged = []
-        for sid in scenes:
-            parts = [(t, pq.read_table(upstream.path(t, sid))) for t in self.tables]
-            merged.append(join_scene(parts, upstream.key(key_stage, sid)))
         meta = {
             "format": FORMAT,
             "tables": list(self.tables),
             "config": to_dict(params.config),
         }
-        rows = write_grasps_parquet(
-            out,
-            merged,
-            row_group_rows=params.dataset.row_group_rows,
-            metadata={META_KEY: canonical_json(meta).encode()},
+        writer = GroupedParquetWriter(
+            out, row_group_rows=params.dataset.row_group_rows, metadata={META_KEY: canonical_json(meta).encode()}
         )
-        return {"grasps": rows, "scenes": len(scenes), "left_out": left_out, "columns": merged[0].num_columns}
+        with writer:  # one scene's shards read at a time, in scene id order: memory holds one row group
+            for sid in scenes:
+                parts = [(t, pq.read_table(upstream.path(t, sid))) for t in self.tables]
+                writer.add(join_scene(parts, upstream.key(key_stage, sid)))
+        assert writer.schema is not None
+        return {"grasps": writer.rows, "scenes": len(scenes), "left_out": left_out, "columns": len(writer.schema)}
 
     def _concatenate(self, stage: str, upstream: Upstream, params: DatasetTaskParams, out: Path) -> dict[str, Any]:
         """``<stage>.parquet``: the stage's shards one after the other, by task id (object or scene name), with
         what each task's meta says of how far it got (:data:`OBJECT_SET_META`) in the file's metadata."""
-        ids = upstream.ids(stage)
-        tables = [pq.read_table(upstream.path(stage, tid)) for tid in ids]
+        ids = upstream.ids(stage)  # sorted: the file's order does not depend on how the shards were made
         tasks = {tid: {k: v for k, v in upstream.meta(stage, tid).items() if k in OBJECT_SET_META} for tid in ids}
         meta = {"format": FORMAT, "stage": stage, "tasks": tasks}
-        rows = write_grasps_parquet(out, tables, row_group_rows=params.dataset.row_group_rows,
+        shards = (pq.read_table(upstream.path(stage, tid)) for tid in ids)  # one shard in memory at a time
+        rows = write_grasps_parquet(out, shards, row_group_rows=params.dataset.row_group_rows,
                                     metadata={META_KEY: canonical_json(meta).encode()})
         return {"rows": rows, "tasks": len(ids)}
 
@@ -414,6 +418,8 @@ class DatasetStage(GraspStage):
             "stages": stages,
             "versions": package_versions(),
             "config": to_dict(params.config),
+            "scene_grasps": scene_grasp_counts(shards.meta("grasps", t) for t in shards.ids("grasps"))
+            if "grasps" in self.inputs else None,
         }
         card = build_card(root, provenance, files, card_settings(params.dataset))  # also removes stray files
         record: dict[str, Any] = {"dataset_key": entry.key, "card_version": CARD_VERSION, "files": {}}

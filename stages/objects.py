@@ -1,7 +1,8 @@
 """Stage 1, ``objects``: turn mesh files into simulation-ready objects.
 
 One task per mesh file (the bundled set in ``assets/objects``, the globs in ``objects.paths`` and the rows of the
-object manifest ``objects.manifest``: :func:`graspgen.io.objects.read_object_manifest`). Each task
+object manifest ``objects.manifest``: :func:`graspgen.io.objects.read_object_manifest`) and per procedural object
+(``objects.procedural``: :mod:`graspgen.geometry.procedural`). Each task
 loads, fixes units, repairs, computes mass properties, decomposes into convex parts (CoACD, cached) and finds
 physics-checked stable poses (:mod:`graspgen.geometry.prepare`), then writes one HDF5 shard::
 
@@ -18,6 +19,11 @@ A manifest row's own values (scale, mass or density, friction, category) enter i
 changed friction makes that object stale, not the others. An object without them has the payload (and the shard)
 it had before manifests existed.
 
+A procedural object has no input file: its payload holds its shape's whole spec (family, seed, index, extents and the
+drawn family parameters, :meth:`~graspgen.geometry.procedural.ProceduralShape.spec`), so the same seed gives the same
+keys, and its task builds the mesh from that spec alone, writes it as ``<name>.obj`` (exact floats) into a temporary
+folder and prepares that file like any other (scale 1: the mesh is in metres).
+
 A broken file fails its own task with a message naming the file and the reason; the other objects go on.
 """
 
@@ -26,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import glob
 import json
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -35,12 +42,15 @@ import numpy as np
 from graspgen.errors import InputError
 from graspgen.geometry.convex import CoacdParams
 from graspgen.geometry.prepare import prepare_object
+from graspgen.geometry.procedural import ProceduralParams, ProceduralShape, build_mesh, draw_shapes, shape_from_spec
 from graspgen.geometry.stable_poses import StablePoseParams
+from graspgen.io.acronym import obj_text
 from graspgen.io.files import write_h5
 from graspgen.io.objects import object_tree, read_object_manifest
 from graspgen.validation import check
 from pipeline.config import to_dict
 from pipeline.errors import ConfigError
+from pipeline.keys import KEY_OMIT_DEFAULT
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
 
@@ -80,6 +90,10 @@ class ObjectsParams:
     """Convex decomposition settings (CoACD)."""
     stable_poses: StablePoseParams = dataclasses.field(default_factory=StablePoseParams)
     """Stable pose search and its physics check."""
+    procedural: ProceduralParams | None = dataclasses.field(default=None, metadata={KEY_OMIT_DEFAULT: True})
+    """Procedurally generated objects besides the files (``{count, families, seed, size_range, max_grasp_width}``,
+    :class:`graspgen.geometry.procedural.ProceduralParams`), named ``<family>_s<seed>_<index>``; density
+    ``density`` (or ``densities`` by name). Null: none."""
 
     def __post_init__(self) -> None:
         if self.manifest is not None:
@@ -119,16 +133,25 @@ class ObjectSource:
     """The object's own sliding friction coefficient (a manifest's ``friction``); None: none."""
     category: str | None = None
     """The object's category (a manifest's ``category``); None: none."""
+    shape: ProceduralShape | None = None
+    """A procedural object's shape (``path`` is then only its notional file name, not a file); None: a mesh file."""
 
     def payload(self) -> dict[str, Any]:
         """The task payload (it enters the key): ``density`` (or ``mass``) and the file suffix, plus the object's
-        own ``scale``, ``friction`` and ``category`` where it has them (so an object without any keeps its key)."""
+        own ``scale``, ``friction`` and ``category`` where it has them (so an object without any keeps its key),
+        and a procedural object's shape spec (``procedural``)."""
         out: dict[str, Any] = {"mass": self.mass} if self.mass is not None else {"density": self.density}
         out["suffix"] = self.path.suffix.lower()
         for field in ("scale", "friction", "category"):
             if getattr(self, field) is not None:
                 out[field] = getattr(self, field)
+        if self.shape is not None:
+            out["procedural"] = self.shape.spec()
         return out
+
+    def inputs(self) -> tuple[str, ...]:
+        """The task's input files: the mesh file; none for a procedural object (its payload says it all)."""
+        return () if self.shape is not None else (str(self.path),)
 
 
 def discover(params: ObjectsParams) -> list[tuple[str, Path, float | None]]:
@@ -144,7 +167,8 @@ def discover(params: ObjectsParams) -> list[tuple[str, Path, float | None]]:
 
 
 def object_sources(params: ObjectsParams) -> list[ObjectSource]:
-    """Every object the params select (bundled, ``objects.paths``, ``objects.manifest``), sorted by name.
+    """Every object the params select (bundled, ``objects.paths``, ``objects.manifest``, ``objects.procedural``),
+    sorted by name.
 
     Raises
     ------
@@ -176,13 +200,19 @@ def object_sources(params: ObjectsParams) -> list[ObjectSource]:
                 f"({other.origin}); names must be unique: set another in the name column"
             )
         found[source.name] = source
+    for source in procedural_sources(params):
+        if source.name in found:
+            raise ConfigError(f"objects.procedural: the name {source.name!r} is already taken by "
+                              f"{found[source.name].path} ({found[source.name].origin}); rename that file")
+        found[source.name] = source
     if params.include:
         missing = sorted(set(params.include) - set(found))
         if missing:
             raise ConfigError(f"objects.include: no object named {missing[0]!r}; available: {', '.join(sorted(found))}")
         found = {n: v for n, v in found.items() if n in params.include}
     if not found:
-        raise ConfigError("objects: no objects selected (bundled is false, and paths and manifest are empty)")
+        raise ConfigError("objects: no objects selected (bundled is false, paths and manifest are empty and "
+                          "procedural is null)")
     return [found[name] for name in sorted(found)]
 
 
@@ -208,6 +238,18 @@ def manifest_sources(params: ObjectsParams) -> list[ObjectSource]:
         origin = f"objects.manifest: {manifest}: row {e.row}"
         sources.append(ObjectSource(e.name, e.path, origin, density, e.mass, e.scale, e.friction, e.category))
     return sources
+
+
+def procedural_sources(params: ObjectsParams) -> list[ObjectSource]:
+    """The objects of ``objects.procedural`` (none when it is null), by index: density ``objects.densities`` by
+    name, else ``objects.density``; scale 1 (the meshes are made in metres)."""
+    if params.procedural is None:
+        return []
+    return [
+        ObjectSource(shape.name, Path(f"{shape.name}.obj"), f"objects.procedural[{shape.index}]",
+                     params.densities.get(shape.name, params.density), scale=1.0, shape=shape)
+        for shape in draw_shapes(params.procedural)
+    ]
 
 
 def user_meshes(params: ObjectsParams) -> list[Path]:
@@ -258,7 +300,7 @@ class ObjectsStage(GraspStage):
 
     def tasks(self, params: ObjectsParams, upstream: Upstream) -> list[Task]:
         return [
-            Task(id=source.name, payload=source.payload(), inputs=(str(source.path),))
+            Task(id=source.name, payload=source.payload(), inputs=source.inputs())
             for source in object_sources(params)
         ]
 
@@ -281,7 +323,15 @@ class ObjectsStage(GraspStage):
         out: Path,
         ctx: RunContext,
     ) -> dict[str, Any]:
-        path = Path(task.inputs[0])
+        payload = task.payload
+        if "procedural" in payload:
+            with tempfile.TemporaryDirectory(prefix="graspgen-procedural-") as tmp:
+                return self._prepare(task, params, rng, out, ctx, _write_procedural(payload["procedural"], Path(tmp)))
+        return self._prepare(task, params, rng, out, ctx, Path(task.inputs[0]))
+
+    def _prepare(
+        self, task: Task, params: ObjectsParams, rng: np.random.Generator, out: Path, ctx: RunContext, path: Path
+    ) -> dict[str, Any]:
         payload = task.payload
         try:
             prepared = prepare_object(
@@ -308,6 +358,16 @@ class ObjectsStage(GraspStage):
             "stable_poses": int(len(prepared.stable_probabilities)),
             "warnings": object_warnings(path, prepared.warnings, prepared.repair.notes),
         }
+
+
+def _write_procedural(spec: dict[str, Any], folder: Path) -> Path:
+    """Build a procedural object's mesh from its spec and write it as ``folder/<name>.obj``; returns the path (the
+    shard records the file name and its bytes' sha256, both fixed by the spec)."""
+    shape = shape_from_spec(spec)
+    mesh = build_mesh(shape)
+    path = folder / f"{shape.name}.obj"
+    path.write_text(obj_text(mesh.vertices, mesh.faces), encoding="utf-8")
+    return path
 
 
 def _with_path(message: str, path: Path) -> str:

@@ -82,7 +82,7 @@ def test_published_layout(run):
     assert set(card["stages"]) == {"objects", "object_grasps", "scenes", "grasps", "placed_grasps", "rollouts",
                                    "robustness", "metrics", "probe", "dataset"}
     assert card["stages"]["rollouts"]["keys"] == keys(root / "out", "rollouts")
-    assert card["config"]["grasps"]["max_per_object"] == 24 and "run" not in card["config"]
+    assert card["config"]["grasps"]["max_per_object"] == 8 and "run" not in card["config"]
     assert {"python", "numpy", "mujoco", "pyarrow", "graspgen"} <= set(card["versions"])
 
 

@@ -47,3 +47,30 @@ def test_rng_is_a_pure_function_of_the_key():
     assert np.array_equal(rng_for_key(key).random(5), rng_for_key(key).random(5))
     other = task_key(parts(task_id="other"))
     assert not np.array_equal(rng_for_key(key).random(5), rng_for_key(other).random(5))
+
+
+def test_a_field_flagged_key_omit_default_leaves_the_key_alone_at_its_default():
+    import dataclasses
+
+    from pipeline.keys import KEY_OMIT_DEFAULT, canonical_json
+
+    @dataclasses.dataclass(frozen=True)
+    class Before:
+        a: int = 1
+
+    @dataclasses.dataclass(frozen=True)
+    class After:
+        a: int = 1
+        added: tuple | None = dataclasses.field(default=None, metadata={KEY_OMIT_DEFAULT: True})
+        plain: int | None = None
+
+    assert canonical_json(After()) == '{"a":1,"plain":null}'
+    assert canonical_json(After(added=(2, 3))) == '{"a":1,"added":[2,3],"plain":null}'
+
+    @dataclasses.dataclass(frozen=True)
+    class Omitting:
+        a: int = 1
+        added: int | None = dataclasses.field(default=None, metadata={KEY_OMIT_DEFAULT: True})
+
+    assert canonical_json(Omitting()) == canonical_json(Before())
+    assert canonical_json({"s": Omitting(added=4)}) == '{"s":{"a":1,"added":4}}'

@@ -25,8 +25,10 @@ from graspgen.io.acronym import FIRM_KEY, FLEX_MOTION, export_object_acronym, re
 from graspgen.io.arrow import column_array, fixed_list
 from graspgen.io.files import write_h5, write_parquet
 from graspgen.io.graspgen_format import (
+    GRASPGEN_GRIPPER_NAMES,
     GraspGenObject,
     export_graspgen,
+    graspgen_gripper_name,
     read_graspgen,
     split_of,
     write_graspgen,
@@ -189,12 +191,13 @@ def test_graspgen_export_round_trips_poses_flags_and_meshes(dataset):
     written = export_graspgen(dataset)
     gg = dataset / "graspgen"
     assert written == sorted([
-        "graspgen/grasp_data/panda/box.grasps.json", "graspgen/grasp_data/panda/can.grasps.json",
-        "graspgen/grasp_data/panda/map_uuid_to_path.json", "graspgen/objects/box.obj", "graspgen/objects/can.obj",
-        "graspgen/splits/panda/train.txt", "graspgen/splits/panda/valid.txt",
+        "graspgen/grasp_data/franka_panda/box.grasps.json", "graspgen/grasp_data/franka_panda/can.grasps.json",
+        "graspgen/grasp_data/franka_panda/map_uuid_to_path.json", "graspgen/objects/box.obj",
+        "graspgen/objects/can.obj", "graspgen/splits/franka_panda/train.txt", "graspgen/splits/franka_panda/valid.txt",
     ])
     entries = read_graspgen(gg)
-    assert [(e.gripper, e.name, e.key) for e in entries] == [("panda", "box", "box.obj"), ("panda", "can", "can.obj")]
+    assert [(e.gripper, e.folder, e.name, e.key) for e in entries] == [
+        ("panda", "franka_panda", "box", "box.obj"), ("panda", "franka_panda", "can", "can.obj")]
     for entry in entries:
         rows = rows_of(dataset, entry.name)
         T_tcp = column_array(rows, "pose_object", (4, 4))
@@ -215,12 +218,12 @@ def test_graspgen_files_read_the_way_graspgen_reads_them(dataset):
     masked by object_in_gripper, the TCP ``depth`` along the base link's +z."""
     export_graspgen(dataset)
     gg = dataset / "graspgen"
-    mapping = json.loads((gg / "grasp_data/panda/map_uuid_to_path.json").read_text())
+    mapping = json.loads((gg / "grasp_data/franka_panda/map_uuid_to_path.json").read_text())
     assert mapping == {"box.obj": "box.grasps.json", "can.obj": "can.grasps.json"}
-    splits = {s: (gg / f"splits/panda/{s}.txt").read_text().split() for s in ("train", "valid")}
+    splits = {s: (gg / f"splits/franka_panda/{s}.txt").read_text().split() for s in ("train", "valid")}
     assert sorted(splits["train"] + splits["valid"]) == ["box.obj", "can.obj"]
     for key, json_name in mapping.items():
-        data = json.loads((gg / "grasp_data/panda" / json_name).read_text())
+        data = json.loads((gg / "grasp_data/franka_panda" / json_name).read_text())
         assert data["object"]["file"] == key and os.path.isfile(os.path.join(gg / "objects", key))
         poses = np.array(data["grasps"]["transforms"])
         mask = np.array(data["grasps"]["object_in_gripper"])
@@ -256,7 +259,7 @@ def test_splits_do_not_move_when_objects_are_added_and_assignments_override(tmp_
         return [GraspGenObject(n, box.vertices, box.faces, T, [True, False], "panda") for n in names]
 
     def split_files(root):
-        return {s: (root / f"splits/panda/{s}.txt").read_text().split() for s in ("train", "valid")}
+        return {s: (root / f"splits/franka_panda/{s}.txt").read_text().split() for s in ("train", "valid")}
 
     few = [f"o{i}" for i in range(6)]
     write_graspgen(tmp_path / "a", objs(few), valid_fraction=0.5)
@@ -269,8 +272,57 @@ def test_splits_do_not_move_when_objects_are_added_and_assignments_override(tmp_
                                            "valid": ["o3.obj"]}
     with pytest.raises(ValueError, match=r"splits\['o1'\]: must be one of train, valid, got 'test'"):
         write_graspgen(tmp_path / "d", objs(few), splits={"o1": "test"})
-    with pytest.raises(InputError, match=r"'o1' is given twice for gripper 'panda'"):
+    with pytest.raises(InputError, match=r"'o1' is given twice for gripper 'franka_panda' \(GraspGen's name; this "
+                                         r"entry's gripper: 'panda'\)"):
         write_graspgen(tmp_path / "d", objs(["o1", "o1"]))
+
+
+def test_gripper_folders_have_graspgen_s_names_and_old_folders_still_read(dataset, tmp_path):
+    """GraspGen registers grippers by config/grippers/<name>.yaml (franka_panda, robotiq_2f_85, robotiq_2f_140, ...
+    at NVlabs/GraspGen a56d518) and its scripts read grasp_data/$GRIPPER_NAME and splits/$GRIPPER_NAME: our export
+    uses those names; a gripper GraspGen lacks keeps ours; exports with our old folder names still read."""
+    assert GRASPGEN_GRIPPER_NAMES == {"panda": "franka_panda", "robotiq_2f85": "robotiq_2f_85",
+                                      "robotiq_2f85_mesh": "robotiq_2f_85"}
+    assert graspgen_gripper_name("box_jaw") == "box_jaw"
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    T = np.tile(np.eye(4), (2, 1, 1))
+    written = write_graspgen(tmp_path / "new", [GraspGenObject("o", box.vertices, box.faces, T, [True, False], g)
+                                                for g in ("robotiq_2f85_mesh", "box_jaw")])
+    assert {Path(w).parts[1] for w in written if not w.startswith("objects/")} == {"robotiq_2f_85", "box_jaw"}
+    data = json.loads((tmp_path / "new/grasp_data/robotiq_2f_85/o.grasps.json").read_text())
+    assert data["gripper"]["name"] == "robotiq_2f_85" and data["gripper"]["source_gripper"] == "robotiq_2f85_mesh"
+    entries = read_graspgen(tmp_path / "new")
+    assert [(e.folder, e.gripper) for e in entries] == [("box_jaw", "box_jaw"), ("robotiq_2f_85", "robotiq_2f85_mesh")]
+    with pytest.raises(InputError, match=r"'o' is given twice for gripper 'robotiq_2f_85'"):
+        write_graspgen(tmp_path / "clash", [GraspGenObject("o", box.vertices, box.faces, T, [True, False], g)
+                                            for g in ("robotiq_2f85", "robotiq_2f85_mesh")])
+    export_graspgen(dataset)
+    gg = dataset / "graspgen"
+    for sub in ("grasp_data", "splits"):  # what GraspGen's train_graspgen_franka_panda_*.sh point at
+        assert sorted(os.listdir(gg / sub / "franka_panda"))[:1] and not (gg / sub / "panda").exists()
+    old = tmp_path / "old"
+    for sub in ("grasp_data", "splits", "objects"):
+        src = gg / sub / ("franka_panda" if sub != "objects" else "")
+        dst = old / sub / ("panda" if sub != "objects" else "")
+        dst.mkdir(parents=True)
+        for f in sorted(src.iterdir()):
+            if f.is_file():
+                text = f.read_text()
+                if f.name.endswith(".grasps.json"):  # as written before: our name, no source_gripper
+                    d = json.loads(text)
+                    d["gripper"]["name"] = "panda"
+                    del d["gripper"]["source_gripper"]
+                    text = json.dumps(d)
+                (dst / f.name).write_text(text)
+    then, now = read_graspgen(old), read_graspgen(gg)
+    assert [(e.folder, e.gripper, e.name, e.split) for e in then] == [("panda", "panda", e.name, e.split) for e in now]
+    for a, b in zip(then, now):
+        np.testing.assert_array_equal(a.tcp_poses(), b.tcp_poses())
+    renamed = tmp_path / "renamed"  # GraspGen's folder name without source_gripper: mapped back to ours
+    for sub in ("grasp_data", "splits"):
+        (renamed / sub).mkdir(parents=True)
+        (old / sub / "panda").rename(renamed / sub / "franka_panda")
+    assert {(e.folder, e.gripper) for e in read_graspgen(renamed)} == {("franka_panda", "panda")}
 
 
 def test_graspgen_export_is_byte_deterministic(dataset):

@@ -234,7 +234,8 @@ def test_run_prints_the_warnings_and_the_card_lists_them(tmp_path):
         "sampler found no more antipodal pairs the gripper opens around (object_grasps.sampler, object_grasps.gripper)",
         f"grasps: scene_000000: gripper {GraspsParams().gripper} cannot grasp object 'big_box': it is 200 mm across "
         "at its "
-        "narrowest, the gripper closes on at most 75 mm (85 mm stroke less grasps.sampler.min_clearance)",
+        "narrowest, the gripper closes on at most 75 mm (85 mm stroke less grasps.sampler.min_clearance), and no "
+        "thin part of it (rim, handle) gave a candidate that passes the pre-filter",
     ]
     lines = result.stderr.splitlines()
     start = lines.index("5 warning(s):")

@@ -458,3 +458,12 @@ def test_resident_bytes_reads_this_process():
         pytest.skip("no /proc/self/statm here")
     psutil = pytest.importorskip("psutil")
     assert abs(rss - psutil.Process().memory_info().rss) < 64 * 2**20
+
+
+def test_entries_record_cpu_seconds_apart_from_wall_seconds(tmp_path):
+    # A task that sleeps spends wall time but (almost) no CPU: the manifest keeps both, so cost models can use CPU.
+    cfg = config(tmp_path / "out", "run.jobs=1", "numbers.sleep=0.2", "numbers.ids=[a]")
+    run_pipeline(TOY, cfg, ["numbers"])
+    (entry,) = Manifest(stage_dir(tmp_path / "out", "numbers")).entries().values()
+    assert entry.seconds >= 0.2
+    assert 0.0 < entry.cpu_seconds < 0.1

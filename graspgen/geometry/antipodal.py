@@ -83,6 +83,7 @@ __all__ = [
     "AntipodalCandidates",
     "sample_antipodal",
     "grasp_depths",
+    "narrowest_width",
     "uses_embree",
 ]
 
@@ -93,6 +94,20 @@ APPROACH_MODES = ("above", "hemisphere", "any")
 def _check_mesh(mesh: object) -> None:
     check_instance("mesh", mesh, trimesh.Trimesh, what="trimesh.Trimesh")
     check("mesh", len(mesh.faces) > 0 and float(mesh.area) > 0, "have faces of positive area", mesh)
+
+
+def narrowest_width(vertices: np.ndarray) -> float:
+    """The object's width at its narrowest, m: the smallest extent of its convex hull along a hull face normal
+    (the exact minimum or slightly above it). 0 for a flat or degenerate point set. An object wider than a
+    gripper's opening here has no antipodal pair across it: only thin parts (rims, handles) can be pinched."""
+    try:
+        hull = trimesh.convex.convex_hull(np.asarray(vertices, dtype=np.float64))
+    except Exception:  # noqa: BLE001 - qhull refuses flat sets: no width to speak of
+        return 0.0
+    if len(hull.faces) == 0:
+        return 0.0
+    extents = np.ptp(hull.vertices @ hull.face_normals.T, axis=0)
+    return float(extents.min())
 
 
 def uses_embree(mesh: trimesh.Trimesh) -> bool:

@@ -27,7 +27,7 @@ import trimesh
 from scipy.spatial import QhullError
 
 from graspgen.geometry.mesh_io import _check_mesh, _label
-from graspgen.validation import check, check_instance, check_number, check_positive_int
+from graspgen.validation import check, check_choice, check_instance, check_number, check_positive_int
 
 __all__ = ["CoacdParams", "HullSlack", "convex_decomposition", "hull_slack"]
 
@@ -35,13 +35,16 @@ _log = logging.getLogger(__name__)
 
 
 # Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss.
-_COACD_CACHE_FORMAT = 1
+_COACD_CACHE_FORMAT = 2  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine
 
 # A mesh whose volume is within this fraction of its hull's volume is treated as convex.
 _CONVEX_VOLUME_TOLERANCE = 1e-6
 
 # CoACD parts below this fraction of the hull volume are slivers that only make MuJoCo's mesh compiler complain.
 _MIN_PART_VOLUME_RATIO = 1e-6
+
+
+_PREPROCESS_MODES = ("unless_watertight", "auto", "on", "off")
 
 
 def _is_int(value: object) -> bool:
@@ -77,14 +80,40 @@ class CoacdParams:
     """CoACD's own random seed; the decomposition is a pure function of mesh, settings and this seed."""
 
     refine_excess: float = 0.1
-    """If the parts' total volume exceeds the mesh's by more than this fraction, they bridge a concavity the
-    gripper could reach (a thin-walled cup or bowl: parts filling its cavity make every grasp on its rim collide),
-    so the mesh is decomposed once more with a quarter of the threshold and four times ``max_convex_hull``, and
-    the tighter result kept. 0 turns this off."""
+    """If the parts' total volume exceeds the mesh's by more than this fraction, they may bridge a concavity the
+    gripper could reach (a thin-walled cup or bowl: parts filling its cavity make every grasp on its rim collide);
+    if their hull slack (p95, :func:`hull_slack`) is also over ``slack_p95``, the mesh is decomposed once more with
+    a quarter of the threshold and four times ``max_convex_hull``, and the result of lower slack kept. 0 turns
+    this off."""
+
+    preprocess_mode: str = "unless_watertight"
+    """CoACD's manifold pre-processing (rebuilding the mesh as a level set on a voxel grid of
+    ``preprocess_resolution`` cells, which dilates it by about half a cell and, measured on ShapeNet mugs and
+    bottles, costs 75-95 % of the decomposition's time): ``"unless_watertight"`` skips it for a mesh that is
+    watertight with consistent winding after repair (already a closed 2-manifold, as CoACD's authors advise
+    for such input) and leaves it to CoACD's own check (``"auto"``) otherwise; ``"auto"``, ``"on"`` and
+    ``"off"`` are passed to CoACD as they are."""
+
+    slack_p95: float = 1e-3
+    """Hull-slack criterion in m (95th percentile of how far the parts' union stands out of the surface,
+    :func:`hull_slack`; half the fingers' 2 mm touch allowance, ``bench/hull_slack.py``): a near-convex mesh
+    whose own convex hull meets it is not decomposed, and a decomposition meeting it is not refined."""
+
+    near_convex_excess: float = 0.05
+    """A watertight mesh whose convex hull exceeds its volume by at most this fraction is tested as near-convex:
+    its hull alone is used if its slack meets ``slack_p95``. 0 only skips exactly convex meshes (1e-6)."""
+
+    slack_samples: int = 4000
+    """Area samples of each hull-slack measurement taken by the decision rules above (seeded from the
+    settings' ``seed``: deterministic)."""
 
     def __post_init__(self) -> None:
         check_number("threshold", self.threshold, low=0.0, high=1.0, low_open=True)
         check_number("refine_excess", self.refine_excess, low=0.0)
+        check_choice("preprocess_mode", self.preprocess_mode, _PREPROCESS_MODES)
+        check_number("slack_p95", self.slack_p95, low=0.0, low_open=True)
+        check_number("near_convex_excess", self.near_convex_excess, low=0.0)
+        check_positive_int("slack_samples", self.slack_samples)
         hulls = self.max_convex_hull
         check("max_convex_hull", _is_int(hulls) and (hulls >= 1 or hulls == -1), "be a positive integer or -1", hulls)
         check_positive_int("preprocess_resolution", self.preprocess_resolution)
@@ -102,12 +131,16 @@ class CoacdParams:
 def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tuple[np.ndarray, np.ndarray]]:
     """Split a mesh into convex parts for collision.
 
-    A watertight mesh whose volume equals its convex hull's within 1e-6 (relative) is already convex; CoACD
-    would only re-approximate it, so its hull is returned as the single part. Otherwise CoACD runs with
-    ``params``; each part is replaced by its own convex hull (CoACD's output is not always exactly convex and
-    MuJoCo needs it to be), parts below 1e-6 of the hull volume are dropped, and the rest are sorted by
-    centroid (x, then y, then z) and vertex count so that the order does not depend on CoACD internals. If
-    every part is dropped, the mesh's convex hull is the single part.
+    A watertight mesh whose volume equals its convex hull's within 1e-6 (relative) is already convex, and one
+    whose hull exceeds its volume by at most ``params.near_convex_excess`` and stands out of it by at most
+    ``params.slack_p95`` (p95 hull slack, :func:`hull_slack`) is convex as far as a gripper can tell; CoACD would
+    only re-approximate either, so its hull is returned as the single part. Otherwise CoACD runs with ``params``
+    (its manifold pre-processing as ``params.preprocess_mode`` says); each part is replaced by its own convex hull
+    (CoACD's output is not always exactly convex and MuJoCo needs it to be), parts below 1e-6 of the hull volume
+    are dropped, and the rest are sorted by centroid (x, then y, then z) and vertex count so that the order does
+    not depend on CoACD internals. If every part is dropped, the mesh's convex hull is the single part. Parts
+    exceeding the volume by more than ``params.refine_excess`` with a slack over ``params.slack_p95`` are
+    refined once (see :class:`CoacdParams`).
 
     Parameters
     ----------
@@ -124,31 +157,58 @@ def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tup
     _check_mesh(mesh, "mesh")
     check_instance("params", params, CoacdParams)
     hull = mesh.convex_hull
-    if _is_convex(mesh, hull):
+    closed = _is_closed(mesh)
+    if closed and (_is_convex(mesh, hull) or _near_convex(mesh, hull, params)):
         return [_part_arrays(hull)]
-    raw = _run_coacd(mesh, params)
+    result, excess = _decompose(mesh, hull, params, closed)
+    if params.refine_excess > 0 and excess > params.refine_excess:
+        slack = _slack_p95(mesh, result, params)
+        if slack > params.slack_p95:
+            finer = dataclasses.replace(
+                params,
+                threshold=params.threshold / 4,
+                max_convex_hull=-1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull,
+                refine_excess=0.0,
+            )
+            refined, _ = _decompose(mesh, hull, finer, closed)
+            refined_slack = _slack_p95(mesh, refined, params)
+            _log.info("%s: parts exceed the volume by %.0f%%, slack p95 %.2f mm; refined: %.2f mm", _label(mesh),
+                      100 * excess, 1e3 * slack, 1e3 * refined_slack)
+            if refined_slack < slack:
+                return refined
+    return result
+
+
+def _decompose(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdParams,
+               closed: bool) -> tuple[list[tuple[np.ndarray, np.ndarray]], float]:
+    """CoACD's parts as sorted convex hulls (slivers dropped; the mesh's hull if none is left), and their volume
+    excess over the mesh (:func:`_volume_excess`)."""
+    raw = _run_coacd(mesh, params, closed)
     parts = [_convex_part(vertices, faces) for vertices, faces in raw]
     min_volume = _MIN_PART_VOLUME_RATIO * hull.volume
     kept = [part for part in parts if part is not None and part.volume > min_volume]
     if not kept:
         _log.warning("%s: CoACD returned no usable part, using the convex hull", _label(mesh))
-        return [_part_arrays(hull)]
-    result = [_part_arrays(part) for part in _sorted_parts(kept)]
-    excess = _volume_excess(mesh, kept)
-    if params.refine_excess > 0 and excess > params.refine_excess:
-        finer = dataclasses.replace(
-            params,
-            threshold=params.threshold / 4,
-            max_convex_hull=-1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull,
-            refine_excess=0.0,
-        )
-        refined = convex_decomposition(mesh, finer)
-        refined_excess = _volume_excess(mesh, [trimesh.Trimesh(v, f) for v, f in refined])
-        _log.info("%s: parts exceed the volume by %.0f%%; refined: %.0f%%", _label(mesh), 100 * excess,
-                  100 * refined_excess)
-        if refined_excess < excess:
-            return refined
-    return result
+        return [_part_arrays(hull)], 0.0
+    return [_part_arrays(part) for part in _sorted_parts(kept)], _volume_excess(mesh, kept)
+
+
+def _is_closed(mesh: trimesh.Trimesh) -> bool:
+    """Watertight, consistently wound and of positive volume: a closed 2-manifold surface (up to self-contact)."""
+    return bool(mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0)
+
+
+def _near_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdParams) -> bool:
+    """Whether the hull alone is within the slack criterion (tested only when its volume excess is small: the
+    slack measurement costs about as much as a cheap decomposition)."""
+    if params.near_convex_excess <= 0 or hull.volume > (1.0 + params.near_convex_excess) * mesh.volume:
+        return False
+    return _slack_p95(mesh, [_part_arrays(hull)], params) <= params.slack_p95
+
+
+def _slack_p95(mesh: trimesh.Trimesh, parts: list[tuple[np.ndarray, np.ndarray]], params: CoacdParams) -> float:
+    """p95 hull slack (m) of the parts, from a generator seeded by the settings (the same parts: the same value)."""
+    return hull_slack(mesh, parts, params.slack_samples, np.random.default_rng(params.seed)).p95
 
 
 def _volume_excess(mesh: trimesh.Trimesh, parts: list[trimesh.Trimesh]) -> float:
@@ -159,19 +219,20 @@ def _volume_excess(mesh: trimesh.Trimesh, parts: list[trimesh.Trimesh]) -> float
 
 
 def _is_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh) -> bool:
-    if not (mesh.is_watertight and mesh.is_winding_consistent):
-        return False
     return abs(hull.volume - mesh.volume) <= _CONVEX_VOLUME_TOLERANCE * abs(hull.volume)
 
 
-def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams) -> list:
+def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams, closed: bool) -> list:
     # CoACD logs every iteration to stdout by default, which would drown the pipeline's own output.
     coacd.set_log_level("error")
+    mode = params.preprocess_mode
+    if mode == "unless_watertight":
+        mode = "off" if closed else "auto"
     return coacd.run_coacd(
         coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
         threshold=params.threshold,
         max_convex_hull=params.max_convex_hull,
-        preprocess_mode="auto",
+        preprocess_mode=mode,
         preprocess_resolution=params.preprocess_resolution,
         resolution=params.resolution,
         mcts_nodes=params.mcts_nodes,

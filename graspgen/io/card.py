@@ -27,8 +27,10 @@ import yaml
 
 from graspgen.errors import InputError
 from graspgen.io.atomic import write_text_atomic
+from graspgen.io.card_grasps import scene_grasps_lines
 from graspgen.io.card_learn import learnability, learnability_lines
-from graspgen.io.dataset_table import FORMAT, META_KEY, OUTCOME_NAMES, dataset_dir, float_values
+from graspgen.io.card_tally import CardTable, GraspTally, ObjectSetTally, PlacedTally, row_groups
+from graspgen.io.dataset_table import FORMAT, META_KEY, OUTCOME_NAMES, dataset_dir
 from graspgen.io.files import sha256_file
 from graspgen.validation import check
 
@@ -129,9 +131,10 @@ def _ranks(x: np.ndarray) -> np.ndarray:
     return (np.bincount(inverse, weights=ranks) / counts)[inverse]
 
 
-def _correlations(table: pa.Table) -> dict[str, Any]:
-    cols = [c for c in CORRELATED if c in table.column_names]
-    values = {c: float_values(table.column(c)) for c in cols}
+def _correlations(values: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """Pearson and Spearman correlations (and pair counts) of the :data:`CORRELATED` labels in ``values`` (each a
+    (rows,) float64 array, NaN where undefined, rows aligned)."""
+    cols = [c for c in CORRELATED if c in values]
     pearson, spearman, counts = [], [], []
     for a in cols:
         rows_p, rows_s, rows_n = [], [], []
@@ -158,65 +161,72 @@ def _card_columns(schema: pa.Schema) -> list[str]:
     return [n for n in schema.names if n in want]
 
 
-def card_stats(root: Path, files: Mapping[str, Any], settings: CardSettings) -> tuple[dict[str, Any], pa.Table]:
+TALLY_COLUMNS = ("scene_id", "object_name", "outcome", "gripper")
+"""The columns of grasps.parquet the counts read (with the labels)."""
+
+
+def card_stats(root: Path, files: Mapping[str, Any], settings: CardSettings) -> tuple[dict[str, Any], CardTable]:
     """Counts, label summaries and correlations of the dataset in ``root`` whose data files are ``files`` (relative
-    paths; the scenes and objects are those listed, not whatever else sits in the folder); also returns the table
-    read."""
-    schema = pq.read_schema(root / "grasps.parquet")
-    table = pq.read_table(root / "grasps.parquet", columns=_card_columns(schema))
-    outcome = table.column("outcome").to_numpy()
-    objects = np.asarray(table.column("object_name").to_pylist(), dtype=object)
-    scene_col = np.asarray(table.column("scene_id").to_pylist(), dtype=object)
+    paths; the scenes and objects are those listed, not whatever else sits in the folder); also returns what the
+    plots read of the table (:class:`graspgen.io.card_tally.CardTable`).
+
+    grasps.parquet is read one row group at a time into running counts (:class:`GraspTally`); only the label
+    columns are kept whole (as float64 arrays: their quantiles and rank correlations need every value)."""
+    path = root / "grasps.parquet"
+    schema = pq.read_schema(path)
+    labels = [c for c in LABEL_COLUMNS if c in schema.names]
+    tally = GraspTally(labels)
+    for group in row_groups(path, [c for c in schema.names if c in (*TALLY_COLUMNS, *labels)]):
+        tally.add(group)
     scenes: dict[str, Any] = {}
-    for path in sorted(root / rel for rel in files if rel.startswith("scenes/")):
-        with h5py.File(path, "r") as f:
+    for scene_path in sorted(root / rel for rel in files if rel.startswith("scenes/")):
+        with h5py.File(scene_path, "r") as f:
             names = f.attrs["object_names"]
             names = json.loads(names.decode() if isinstance(names, bytes) else names) if not isinstance(
                 names, np.ndarray) else names.tolist()
-            scenes[path.stem] = {
-                "grasps": int((scene_col == path.stem).sum()),
+            scenes[scene_path.stem] = {
+                "grasps": tally.scenes.get(scene_path.stem, 0),
                 "objects": [str(n) for n in names],
                 "views": int(f["cameras/K"].shape[0]),
             }
     library = sorted(Path(rel).stem for rel in files if rel.startswith("objects/"))
     per_object = {}
     for name in library:
-        sel = objects == name
-        counts = [int(((outcome == c) & sel).sum()) for c in range(len(OUTCOME_NAMES))]
-        n = int(sel.sum())
+        row = tally.objects.get(name, np.zeros(len(OUTCOME_NAMES) + 1, np.int64))
+        counts = [int(n) for n in row[: len(OUTCOME_NAMES)]]
+        n = int(row[len(OUTCOME_NAMES)])
         per_object[name] = {
             "scenes": sum(name in s["objects"] for s in scenes.values()),
             "grasps": n,
             "outcomes": counts,
             "success_rate": _num(counts[5] / n) if n else None,
         }
-    labels = {}
-    for col in LABEL_COLUMNS:
-        if col in table.column_names:
-            labels[col] = label_summary(
-                float_values(table.column(col)), settings.histogram_bins, col in ("robustness", "pfc")
-            )
+    values = {c: tally.values(c) for c in labels}
+    summaries = {
+        col: label_summary(values[col], settings.histogram_bins, col in ("robustness", "pfc")) for col in labels
+    }
     stats = {
         "counts": {
-            "grasps": len(table),
+            "grasps": tally.rows,
             "scenes": len(scenes),
             "views": sum(s["views"] for s in scenes.values()),
             "objects": len(library),
             "objects_with_grasps": int(sum(1 for o in per_object.values() if o["grasps"])),
-            "grippers": sorted(set(table.column("gripper").to_pylist())),
+            "grippers": sorted(tally.grippers),
         },
         "outcomes": [
-            {"code": c, "name": name, "grasps": int((outcome == c).sum())} for c, name in enumerate(OUTCOME_NAMES)
+            {"code": c, "name": name, "grasps": int(tally.outcomes[c])} for c, name in enumerate(OUTCOME_NAMES)
         ],
         "objects": per_object,
         "scenes": scenes,
-        "labels": labels,
-        "correlation": _correlations(table),
+        "labels": summaries,
+        "correlation": _correlations(values),
     }
+    del values
     sets = object_set_stats(root, files)
     if sets:
         stats["object_sets"] = sets
-    return stats, table
+    return stats, CardTable(path, _card_columns(schema), tally)
 
 
 OBJECT_SET_FILES = ("object_grasps.parquet", "placed_grasps.parquet")
@@ -234,56 +244,50 @@ def object_set_stats(root: Path, files: Mapping[str, Any]) -> dict[str, Any]:
     the file's metadata: how far each object's set got), the success rate among the kept antipodal and near-miss
     candidates. ``placed``: the placed scene grasps, how many are free of the support and the neighbours, how many
     are positives (object-level success and free), and the re-simulation check: how many were rolled out again in
-    their scene and how often the label changed (both ways).
+    their scene and how often the label changed (both ways). Both files are read one row group at a time into
+    running counts (:mod:`graspgen.io.card_tally`).
     """
     out: dict[str, Any] = {}
     if "object_grasps.parquet" in files:
         path = root / "object_grasps.parquet"
         meta = json.loads((pq.read_schema(path).metadata or {}).get(META_KEY, b"{}")).get("tasks", {})
-        t = pq.read_table(path, columns=["object_name", "candidate", "success"])
-        names = np.asarray(t.column("object_name").to_pylist(), dtype=object)
-        kind = np.asarray(t.column("candidate").to_pylist(), dtype=object)
-        ok = t.column("success").to_numpy(zero_copy_only=False).astype(bool)
+        sets = ObjectSetTally()
+        for group in row_groups(path, ["object_name", "candidate", "success"]):
+            sets.add(group)
         objects = {}
-        for name in sorted(set(names) | set(meta)):
-            sel = names == name
+        for name in sorted(set(sets.objects) | set(meta)):
+            grasps, positives, near, near_ok = (int(v) for v in sets.objects.get(name, np.zeros(4, np.int64)))
             m = meta.get(name, {})
-            near = sel & (kind == "near_miss")
             objects[name] = {
-                "grasps": int(sel.sum()),
-                "positives": int((sel & ok).sum()),
-                "negatives": int((sel & ~ok).sum()),
+                "grasps": grasps,
+                "positives": positives,
+                "negatives": grasps - positives,
                 "target_positives": m.get("target_positives"),
                 "target_negatives": m.get("target_negatives"),
                 "tried": m.get("tried"),
                 "reached": m.get("reached"),
-                "near_miss": int(near.sum()),
-                "near_miss_success_rate": _rate(int((near & ok).sum()), int(near.sum())),
+                "near_miss": near,
+                "near_miss_success_rate": _rate(near_ok, near),
             }
         out["objects"] = objects
     if "placed_grasps.parquet" in files:
-        t = pq.read_table(root / "placed_grasps.parquet",
-                          columns=["scene_id", "scene_code", "object_success", "success", "rescene_outcome",
-                                   "rescene_success"])
-        code = t.column("scene_code").to_numpy()
-        ok = t.column("success").to_numpy(zero_copy_only=False).astype(bool)
-        obj_ok = t.column("object_success").to_numpy(zero_copy_only=False).astype(bool)
-        checked = t.column("rescene_outcome").to_numpy() >= 0
-        re_ok = np.asarray([bool(v) for v in t.column("rescene_success").to_pylist()])
-        free = code < 0
-        pos, neg = checked & obj_ok, checked & ~obj_ok
+        placed = PlacedTally()
+        for group in row_groups(root / "placed_grasps.parquet", ["scene_id", "scene_code", "object_success",
+                                                                  "success", "rescene_outcome", "rescene_success"]):
+            placed.add(group)
+        n = placed.counts
         out["placed"] = {
-            "grasps": len(t),
-            "scenes": len(set(t.column("scene_id").to_pylist())),
-            "free": int(free.sum()),
-            "support_collisions": int((code == 0).sum()),
-            "clutter_collisions": int((code == 2).sum()),
-            "positives": int(ok.sum()),
-            "rescene_checked": int(checked.sum()),
-            "rescene_changed": int((checked & (re_ok != obj_ok)).sum()),
-            "rescene_change_rate": _rate(int((checked & (re_ok != obj_ok)).sum()), int(checked.sum())),
-            "rescene_lost": _rate(int((pos & ~re_ok).sum()), int(pos.sum())),
-            "rescene_gained": _rate(int((neg & re_ok).sum()), int(neg.sum())),
+            "grasps": n["grasps"],
+            "scenes": len(placed.scenes),
+            "free": n["free"],
+            "support_collisions": n["support_collisions"],
+            "clutter_collisions": n["clutter_collisions"],
+            "positives": n["positives"],
+            "rescene_checked": n["checked"],
+            "rescene_changed": n["changed"],
+            "rescene_change_rate": _rate(n["changed"], n["checked"]),
+            "rescene_lost": _rate(n["lost"], n["pos"]),
+            "rescene_gained": _rate(n["gained"], n["neg"]),
         }
     return out
 
@@ -334,6 +338,7 @@ def build_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, An
         "schema": _schema_doc(schema),
         "plots": plots,
         "learnability": learnability(root, files, provenance["config"], provenance.get("warnings", [])),
+        "scene_grasps": provenance.get("scene_grasps"),  # per-object sampling counts (graspgen.io.card_grasps)
         "files": {k: files[k] for k in sorted(files)},
         "stages": provenance["stages"],
         "versions": provenance["versions"],
@@ -429,6 +434,7 @@ def render_card(card: Mapping[str, Any]) -> str:
     lines += ["", "Columns 0-5 are the outcome codes above.", ""]
     lines += _object_set_lines(sets)
     lines += learnability_lines(card.get("learnability"))
+    lines += scene_grasps_lines(card.get("scene_grasps"))
     lines += ["## Labels", ""]
     if card["labels"]:
         lines += [
@@ -631,6 +637,7 @@ def report(path: str | Path) -> Path:
             raise InputError(f"{f}: {state}; gen validate {path} lists every damaged file")
     provenance = {k: old[k] for k in ("dataset_key", "tables", "left_out", "stages", "versions", "config")}
     provenance["warnings"] = old.get("warnings", [])
+    provenance["scene_grasps"] = old.get("scene_grasps")
     try:
         build_card(root, provenance, data_files, settings)
     except pa.ArrowException as exc:  # same size but damaged

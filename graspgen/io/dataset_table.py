@@ -23,10 +23,12 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from graspgen.errors import InputError
+from graspgen.io.row_groups import GroupedParquetWriter, write_grasps_parquet
 
 __all__ = [
     "COLUMN_DOCS",
     "FORMAT",
+    "GroupedParquetWriter",
     "ID_COLUMNS",
     "JOIN_KEYS",
     "LABEL_TYPES",
@@ -269,63 +271,6 @@ def join_scene(parts: Sequence[tuple[str, pa.Table]], source_key: str) -> pa.Tab
     return pa.Table.from_arrays(arrays, schema=pa.schema(fields))
 
 
-def write_grasps_parquet(
-    path: str | Path,
-    scenes: Sequence[pa.Table],
-    *,
-    row_group_rows: int,
-    metadata: Mapping[bytes, bytes],
-) -> int:
-    """Write the merged scenes to one Parquet file, whole scenes per row group; returns the number of rows.
-
-    The settings are those of :func:`graspgen.io.files.write_parquet` (zstd 3, dictionaries, statistics, no pandas
-    metadata), so the bytes are a function of the tables alone. Row groups: consecutive scenes packed until the
-    next would take the group past ``row_group_rows`` rows. The same goes for any list of tables of one schema
-    (objects' grasp sets: whole objects per group).
-    """
-    if not scenes:
-        raise InputError("dataset: no scene to write")
-    schema = scenes[0].schema.with_metadata(dict(metadata))
-    for t in scenes[1:]:
-        if not t.schema.equals(scenes[0].schema, check_metadata=True):
-            raise InputError(f"dataset: scene {_scene_of(t)} has other columns than {_scene_of(scenes[0])}")
-    groups: list[list[pa.Table]] = [[]]
-    rows = 0
-    for t in scenes:
-        if len(t) == 0:
-            continue
-        if groups[-1] and rows + len(t) > row_group_rows:
-            groups.append([])
-            rows = 0
-        groups[-1].append(t)
-        rows += len(t)
-    total = 0
-    with pq.ParquetWriter(
-        path,
-        schema,
-        compression="zstd",
-        compression_level=3,
-        use_dictionary=True,
-        write_statistics=True,
-        store_schema=True,
-    ) as writer:
-        for group in groups:
-            if not group:
-                continue
-            table = pa.concat_tables(group).cast(schema).combine_chunks()
-            writer.write_table(table, row_group_size=len(table))
-            total += len(table)
-    return total
-
-
-def _scene_of(table: pa.Table) -> str:
-    """The first id column's first value (the scene, or the object of an object set), for messages."""
-    for name in ("scene_id", "object_name"):
-        if name in table.column_names and len(table):
-            return str(table.column(name)[0].as_py())
-    return "(empty)"
-
-
 def dataset_dir(path: str | Path) -> Path:
     """The published dataset folder of ``path``: ``path`` itself when it holds grasps.parquet, else path/dataset.
 
@@ -370,41 +315,84 @@ def check_table(root: Path, card: Mapping[str, Any]) -> list[str]:
         problems.append(f"{where}: {pf.metadata.num_rows} rows, card.json says {card.get('counts', {}).get('grasps')}")
     cols = [c for c in ("scene_id", "grasp_id", "object_name", "outcome", "outcome_name", "pose_world",
                         "robustness", "robustness_lo", "robustness_hi", "pfc", "epsilon") if c in schema.names]
-    t = pf.read(columns=cols)
-    sid = np.asarray(t.column("scene_id").to_pylist(), dtype=object)
-    gid = t.column("grasp_id").to_numpy()
-    keys = list(zip(sid.tolist(), gid.tolist()))
-    if keys != sorted(set(keys)):
-        problems.append(f"{where}: rows are not sorted and unique by (scene_id, grasp_id)")
-    outcome = t.column("outcome").to_numpy()
-    if len(outcome) and (outcome.min() < 0 or outcome.max() >= len(OUTCOME_NAMES)):
-        problems.append(f"{where}: outcome codes outside 0-5")
-    elif [OUTCOME_NAMES[o] for o in outcome.tolist()] != t.column("outcome_name").to_pylist():
-        problems.append(f"{where}: outcome_name does not match outcome")
-    for name in ("robustness", "robustness_lo", "robustness_hi", "pfc"):
-        if name in t.column_names:
-            v = float_values(t.column(name))
-            if np.any((v < 0) | (v > 1)):
-                problems.append(f"{where}: {name} outside [0, 1]")
-    if {"robustness", "robustness_lo", "robustness_hi"} <= set(t.column_names):
-        r, lo, hi = (float_values(t.column(n)) for n in ("robustness", "robustness_lo", "robustness_hi"))
-        ok = np.isfinite(r)
-        if np.any(lo[ok] > r[ok] + 1e-12) or np.any(hi[ok] < r[ok] - 1e-12):
-            problems.append(f"{where}: robustness outside its interval [robustness_lo, robustness_hi]")
-    if "epsilon" in t.column_names and np.any(float_values(t.column("epsilon")) < 0):
-        problems.append(f"{where}: negative epsilon")
-    T = np.asarray(t.column("pose_world").combine_chunks().values, dtype=np.float64).reshape(-1, 4, 4)
-    R = T[:, :3, :3]
-    if len(T) and (
-        not np.allclose(R @ R.transpose(0, 2, 1), np.eye(3), atol=1e-6)
-        or not np.allclose(T[:, 3], [0, 0, 0, 1])
-        or np.any(np.linalg.det(R) < 0)
-    ):
-        problems.append(f"{where}: pose_world holds matrices that are not rigid transforms")
-    for s in sorted(set(sid.tolist())):
+    found = _RowChecks()
+    for i in range(pf.metadata.num_row_groups):  # one row group in memory at a time
+        found.add(pf.read_row_group(i, columns=cols))
+    problems += found.problems(where)
+    for s in sorted(found.scenes):
         if not (root / "scenes" / f"{s}.h5").is_file():
             problems.append(f"{root / 'scenes' / f'{s}.h5'}: missing (grasps.parquet has grasps of {s})")
-    for o in sorted(set(t.column("object_name").to_pylist())):
+    for o in sorted(found.objects):
         if not (root / "objects" / f"{o}.h5").is_file():
             problems.append(f"{root / 'objects' / f'{o}.h5'}: missing (grasps.parquet has grasps of {o})")
     return problems
+
+
+class _RowChecks:
+    """The row checks of :func:`check_table`, fed one row group at a time: what was found, and the scenes and
+    objects named (memory: the names, not the rows)."""
+
+    MESSAGES = {
+        "order": "rows are not sorted and unique by (scene_id, grasp_id)",
+        "codes": "outcome codes outside 0-5",
+        "names": "outcome_name does not match outcome",
+        "robustness": "robustness outside [0, 1]",
+        "robustness_lo": "robustness_lo outside [0, 1]",
+        "robustness_hi": "robustness_hi outside [0, 1]",
+        "pfc": "pfc outside [0, 1]",
+        "interval": "robustness outside its interval [robustness_lo, robustness_hi]",
+        "epsilon": "negative epsilon",
+        "poses": "pose_world holds matrices that are not rigid transforms",
+    }
+    """Each finding's text, in the order they are reported."""
+
+    def __init__(self) -> None:
+        self.found: set[str] = set()
+        self.scenes: set[str] = set()
+        self.objects: set[str] = set()
+        self._last: tuple[str, int] | None = None
+
+    def add(self, t: pa.Table) -> None:
+        if len(t) == 0:
+            return
+        sid = np.asarray(t.column("scene_id").to_pylist(), dtype=object)
+        gid = t.column("grasp_id").to_numpy().astype(np.int64)
+        if self._last is not None:  # the group's first row follows the last group's last one
+            sid, gid = np.r_[np.asarray([self._last[0]], dtype=object), sid], np.r_[self._last[1], gid]
+        later = (sid[1:] > sid[:-1]) | ((sid[1:] == sid[:-1]) & (gid[1:] > gid[:-1]))
+        if not np.all(later):
+            self.found.add("order")
+        self._last = (str(sid[-1]), int(gid[-1]))
+        self.scenes.update(t.column("scene_id").unique().to_pylist())
+        self.objects.update(t.column("object_name").unique().to_pylist())
+        outcome = t.column("outcome").to_numpy()
+        if outcome.min() < 0 or outcome.max() >= len(OUTCOME_NAMES):
+            self.found.add("codes")
+        elif [OUTCOME_NAMES[o] for o in outcome.tolist()] != t.column("outcome_name").to_pylist():
+            self.found.add("names")
+        for name in ("robustness", "robustness_lo", "robustness_hi", "pfc"):
+            if name in t.column_names:
+                v = float_values(t.column(name))
+                if np.any((v < 0) | (v > 1)):
+                    self.found.add(name)
+        if {"robustness", "robustness_lo", "robustness_hi"} <= set(t.column_names):
+            r, lo, hi = (float_values(t.column(n)) for n in ("robustness", "robustness_lo", "robustness_hi"))
+            ok = np.isfinite(r)
+            if np.any(lo[ok] > r[ok] + 1e-12) or np.any(hi[ok] < r[ok] - 1e-12):
+                self.found.add("interval")
+        if "epsilon" in t.column_names and np.any(float_values(t.column("epsilon")) < 0):
+            self.found.add("epsilon")
+        T = np.asarray(t.column("pose_world").combine_chunks().values, dtype=np.float64).reshape(-1, 4, 4)
+        R = T[:, :3, :3]
+        if (
+            not np.allclose(R @ R.transpose(0, 2, 1), np.eye(3), atol=1e-6)
+            or not np.allclose(T[:, 3], [0, 0, 0, 1])
+            or np.any(np.linalg.det(R) < 0)
+        ):
+            self.found.add("poses")
+
+    def problems(self, where: str) -> list[str]:
+        """The findings as problem lines (``where`` first), once each, in :data:`MESSAGES` order; outcome names
+        are only compared where no code was out of range."""
+        found = self.found - {"names"} if "codes" in self.found else self.found
+        return [f"{where}: {text}" for key, text in self.MESSAGES.items() if key in found]

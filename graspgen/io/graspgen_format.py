@@ -11,6 +11,13 @@ NVIDIA's GraspDataGen writes for it (its GraspGen workflow page)::
         splits/<gripper>/train.txt                    one object key per line (GraspGen's ``splits`` root)
         splits/<gripper>/valid.txt
 
+``<gripper>`` is the name GraspGen gives the gripper (:data:`GRASPGEN_GRIPPER_NAMES`: ``franka_panda`` for our
+``panda``, ``robotiq_2f_85`` for our 2F-85 models; GraspGen registers a gripper by its file
+``config/grippers/<name>.yaml`` and its training scripts build ``grasp_data/$GRIPPER_NAME`` and
+``splits/$GRIPPER_NAME`` from it), so its loaders and scripts find our export under their defaults; a gripper
+GraspGen has no config for keeps our name. Exports made before this used our names (``grasp_data/panda``);
+:func:`read_graspgen` reads both and says which folder each entry came from (:attr:`GraspGenEntry.folder`).
+
 An object's *key* is its mesh path relative to the object dataset root, ``<object>.obj``: the lines of the split
 files, the ``object.file`` of its JSON and the keys of ``map_uuid_to_path.json`` (GraspGen looks the JSON up by it and
 loads ``os.path.join(object_root_dir, key)``). Train with GraspGen's ``object_root_dir = <root>/objects``,
@@ -19,7 +26,8 @@ loads ``os.path.join(object_root_dir, key)``). Train with GraspGen's ``object_ro
     {
       "object":  {"file": "<object>.obj", "scale": 1.0},
       "gripper": {"name": "<gripper>", "width": max_width, "depth": tcp_offset,
-                  "transform_offset_from_asset_to_graspgen_convention": [[0, 0, 0], [0, 0, 0, 1]]},
+                  "transform_offset_from_asset_to_graspgen_convention": [[0, 0, 0], [0, 0, 0, 1]],
+                  "source_gripper": "<our gripper name>"},
       "grasps":  {"transforms": [(4, 4) nested lists, ...], "object_in_gripper": [true, false, ...],
                   "grasp_id": [int, ...], "protocol": "<protocol>", "firm_hold": [true, false, ...]}
     }
@@ -27,13 +35,13 @@ loads ``os.path.join(object_root_dir, key)``). Train with GraspGen's ``object_ro
 GraspGen itself reads ``object.file``, ``object.scale``, ``grasps.transforms`` and ``grasps.object_in_gripper`` (JSON
 booleans: the loader indexes the poses with them as a boolean mask, so 0/1 integers would pick rows 0 and 1); the
 ``gripper`` block is the one GraspDataGen writes (informational: GraspGen takes its gripper from its own config
-``config/grippers/<name>.yaml``); ``grasp_id`` and ``protocol`` are ours, for the way back to our tables. Labels:
-``object_in_gripper``, the one GraspGen trains on, is our still-held label (the table's ``success``: outcome 5, the
-object still between the fingers after the protocol's disturbance, as ACRONYM's and GraspDataGen's labels are);
-``firm_hold`` (ours, written when the table has ``firm``; GraspGen ignores it) is the firm-hold label (still held
-and the object's motion in the hand within the firm-hold tolerances, :mod:`graspgen.sim.lift`). To train GraspGen
-on firm holds, write ``firm`` as ``success`` (:class:`GraspGenObject`). Floats are
-written with Python's shortest round-trip repr, so the JSON holds the poses exactly.
+``config/grippers/<name>.yaml``); ``source_gripper`` (our gripper name), ``grasp_id`` and ``protocol`` are ours,
+for the way back to our tables. Labels: ``object_in_gripper``, the one GraspGen trains on, is our still-held label
+(the table's ``success``: outcome 5, the object still between the fingers after the protocol's disturbance, as
+ACRONYM's and GraspDataGen's labels are); ``firm_hold`` (ours, written when the table has ``firm``; GraspGen ignores
+it) is the firm-hold label (still held and the object's motion in the hand within the firm-hold tolerances,
+:mod:`graspgen.sim.lift`). To train GraspGen on firm holds, write ``firm`` as ``success`` (:class:`GraspGenObject`).
+Floats are written with Python's shortest round-trip repr, so the JSON holds the poses exactly.
 
 Frames (stated precisely, and tested). ``grasps.transforms`` are the **gripper base-link frame** in the object's mesh
 frame (GraspGen: "4x4 homogeneous transformation matrix of the base link of gripper"), metres. GraspGen's gripper
@@ -59,7 +67,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -69,16 +77,18 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from graspgen.errors import InputError
-from graspgen.io.acronym import hand_base_from_tcp, obj_text, tcp_from_hand_base
+from graspgen.io.acronym import hand_base_from_tcp, obj_text, objects_of_table, tcp_from_hand_base
 from graspgen.io.arrow import column_array
 from graspgen.io.atomic import write_text_atomic
 from graspgen.sim.grippers import load_gripper
 from graspgen.validation import check_number, check_transforms
 
 __all__ = [
+    "GRASPGEN_GRIPPER_NAMES",
     "SPLITS",
     "GraspGenObject",
     "GraspGenEntry",
+    "graspgen_gripper_name",
     "split_of",
     "write_graspgen",
     "export_graspgen",
@@ -87,6 +97,18 @@ __all__ = [
 
 SPLITS = ("train", "valid")
 """The split files GraspGen reads (``<root_dir>/{train,valid}.txt``)."""
+
+GRASPGEN_GRIPPER_NAMES = {
+    "panda": "franka_panda",
+    "robotiq_2f85": "robotiq_2f_85",
+    "robotiq_2f85_mesh": "robotiq_2f_85",
+}
+"""Our registered gripper name -> GraspGen's (the stem of its ``config/grippers/<name>.yaml``, NVlabs/GraspGen
+at commit a56d518: ``franka_panda``, ``robotiq_2f_85``, ``robotiq_2f_140``, ``single_suction_cup_30mm``). Both
+2F-85 models (boxes and meshes) are the one hand GraspGen calls ``robotiq_2f_85``."""
+
+_OUR_NAME = {"franka_panda": "panda", "robotiq_2f_85": "robotiq_2f85"}
+"""GraspGen's folder name -> our gripper, for files without ``gripper.source_gripper``."""
 
 _IDENTITY_OFFSET = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
 """GraspGen's ``transform_offset_from_asset_to_graspgen_convention`` (translation, quaternion xyzw) for a gripper whose
@@ -126,7 +148,8 @@ class GraspGenEntry:
     name: str
     """The JSON file's stem before ``.grasps.json``."""
     gripper: str
-    """The ``grasp_data/<gripper>`` folder it was found in."""
+    """Our gripper name (:func:`graspgen.sim.grippers.load_gripper`): the file's ``gripper.source_gripper``, else
+    the folder's GraspGen name mapped back (``franka_panda`` -> ``panda``), else the folder name."""
     split: str | None
     """``train`` or ``valid``: the split file listing ``key`` (None when neither does)."""
     mesh_path: Path
@@ -147,6 +170,9 @@ class GraspGenEntry:
     """The JSON file."""
     firm: np.ndarray | None = None
     """(n,) bool ``grasps.firm_hold`` (ours: the firm-hold label) or None when absent."""
+    folder: str = ""
+    """The ``grasp_data/<folder>`` it was found in: GraspGen's gripper name (``franka_panda``) in exports written
+    now, our own (``panda``) in older ones."""
 
     def __len__(self) -> int:
         return len(self.transforms)
@@ -157,6 +183,12 @@ class GraspGenEntry:
         if depth is None:
             depth = self.depth if self.depth is not None else load_gripper(self.gripper).tcp_offset
         return tcp_from_hand_base(self.transforms, depth) if len(self) else np.zeros((0, 4, 4))
+
+
+def graspgen_gripper_name(name: str) -> str:
+    """The folder (and ``gripper.name``) GraspGen knows our gripper ``name`` by: :data:`GRASPGEN_GRIPPER_NAMES`,
+    else ``name`` itself (a gripper GraspGen has no config for)."""
+    return GRASPGEN_GRIPPER_NAMES.get(name, name)
 
 
 def split_of(name: str, valid_fraction: float) -> str:
@@ -185,7 +217,7 @@ def _check_name(name: Any, where: str) -> str:
 
 
 def _grasp_json(obj: GraspGenObject, key: str) -> tuple[str, str]:
-    """(JSON text, our gripper name) of one object."""
+    """(JSON text, GraspGen's gripper name) of one object."""
     spec = load_gripper(obj.gripper)
     T_tcp = np.zeros((0, 4, 4)) if len(np.asarray(obj.T_tcp)) == 0 else check_transforms("T_tcp", obj.T_tcp)
     n = len(T_tcp)
@@ -199,21 +231,23 @@ def _grasp_json(obj: GraspGenObject, key: str) -> tuple[str, str]:
     if firm is not None and len(firm) != n:
         raise ValueError(f"{obj.name}: firm: expected {n} labels (one per pose), got {len(firm)}")
     T_base = hand_base_from_tcp(T_tcp, spec.tcp_offset) if n else T_tcp
+    name = graspgen_gripper_name(spec.name)
     data = {
         "object": {"file": key, "scale": 1.0},
-        "gripper": {"name": spec.name, "width": float(spec.max_width), "depth": float(spec.tcp_offset),
-                    "transform_offset_from_asset_to_graspgen_convention": _IDENTITY_OFFSET},
+        "gripper": {"name": name, "width": float(spec.max_width), "depth": float(spec.tcp_offset),
+                    "transform_offset_from_asset_to_graspgen_convention": _IDENTITY_OFFSET,
+                    "source_gripper": spec.name},
         "grasps": {"transforms": T_base.tolist(), "object_in_gripper": [bool(s) for s in success],
                    "grasp_id": [int(i) for i in ids], "protocol": str(obj.protocol)},
     }
     if firm is not None:
         data["grasps"]["firm_hold"] = [bool(f) for f in firm]
-    return json.dumps(data, separators=(",", ":")) + "\n", spec.name
+    return json.dumps(data, separators=(",", ":")) + "\n", name
 
 
 def write_graspgen(
     root: str | Path,
-    objects: Sequence[GraspGenObject],
+    objects: Iterable[GraspGenObject],
     *,
     valid_fraction: float = 0.2,
     splits: Mapping[str, str] | None = None,
@@ -224,9 +258,10 @@ def write_graspgen(
     ----------
     root : str or Path
         Output folder (made when missing; files in it are overwritten, others left alone).
-    objects : sequence of GraspGenObject
-        One entry per (object, gripper); an object with grasps of several grippers has one entry per gripper (its
-        mesh is written once; the entries must share it).
+    objects : iterable of GraspGenObject
+        One entry per (object, gripper), consumed one at a time (each one's files are written before the next);
+        an object with grasps of several grippers has one entry per gripper (its mesh is written once; the entries
+        must share it).
     valid_fraction : float
         Share of objects for ``valid`` (:func:`split_of`), in [0, 1].
     splits : mapping, optional
@@ -240,7 +275,8 @@ def write_graspgen(
     Raises
     ------
     graspgen.errors.InputError
-        A bad object name, or two entries of one object and gripper.
+        A bad object name, or two entries of one object and gripper (by GraspGen's name: ``robotiq_2f85`` and
+        ``robotiq_2f85_mesh`` are both ``robotiq_2f_85``).
     ValueError
         Poses, labels or ids of the wrong shape; a split other than train / valid.
     graspgen.errors.SettingsError
@@ -252,30 +288,39 @@ def write_graspgen(
     for name, split in chosen.items():
         if split not in SPLITS:
             raise ValueError(f"splits[{name!r}]: must be one of {', '.join(SPLITS)}, got {split!r}")
-    files: dict[str, str] = {}
+    written: set[str] = set()
+    mesh_digests: dict[str, str] = {}
     listed: dict[str, dict[str, list[str]]] = {}
+
+    def write(rel: str, text: str) -> None:
+        write_text_atomic(root / rel, text)
+        written.add(rel)
+
+    # Each object's files are written as it comes, so an iterable of objects is never held whole.
     for obj in objects:
         name = _check_name(obj.name, "objects")
         key = f"{name}.obj"
         mesh = obj_text(obj.vertices, obj.faces)
-        if files.setdefault(f"objects/{key}", mesh) != mesh:
+        digest = hashlib.sha256(mesh.encode()).hexdigest()
+        if mesh_digests.setdefault(key, digest) != digest:
             raise InputError(f"objects: {name!r} is given twice with different meshes")
         text, gripper = _grasp_json(obj, key)
         rel = f"grasp_data/{gripper}/{name}.grasps.json"
-        if rel in files:
-            raise InputError(f"objects: {name!r} is given twice for gripper {gripper!r}")
-        files[rel] = text
+        if rel in written:
+            raise InputError(f"objects: {name!r} is given twice for gripper {gripper!r} (GraspGen's name; this entry's "
+                             f"gripper: {str(obj.gripper)!r})")
+        if f"objects/{key}" not in written:
+            write(f"objects/{key}", mesh)
+        write(rel, text)
         split = chosen.get(name) or split_of(name, valid_fraction)
         listed.setdefault(gripper, {s: [] for s in SPLITS})[split].append(key)
     for gripper, by_split in listed.items():
         keys = sorted(k for keys in by_split.values() for k in keys)
         mapping = {k: f"{k[: -len('.obj')]}.grasps.json" for k in keys}
-        files[f"grasp_data/{gripper}/map_uuid_to_path.json"] = json.dumps(mapping, indent=2, sort_keys=True) + "\n"
+        write(f"grasp_data/{gripper}/map_uuid_to_path.json", json.dumps(mapping, indent=2, sort_keys=True) + "\n")
         for split, keys in by_split.items():
-            files[f"splits/{gripper}/{split}.txt"] = "".join(f"{k}\n" for k in sorted(keys))
-    for rel in sorted(files):
-        write_text_atomic(root / rel, files[rel])
-    return sorted(files)
+            write(f"splits/{gripper}/{split}.txt", "".join(f"{k}\n" for k in sorted(keys)))
+    return sorted(written)
 
 
 def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
@@ -313,28 +358,30 @@ def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
     if missing:
         raise InputError(f"{path}: not an object grasp table: no column(s) {', '.join(missing)}")
     has_firm = "firm" in pq.read_schema(path).names
-    table = pq.read_table(path, columns=wanted + (["firm"] if has_firm else []))
-    names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
-    grippers = np.asarray(table.column("gripper").to_pylist(), dtype=object)
-    objects, meshes = [], {}
-    for name, gripper in sorted({(str(n), str(g)) for n, g in zip(names, grippers)}):
-        _check_name(name, str(path))
-        part = table.take(pa.array(np.flatnonzero((names == name) & (grippers == gripper))))
-        protocols = sorted(set(part.column("protocol").to_pylist()))
-        if len(protocols) != 1:
-            raise InputError(f"{path}: object {name!r} ({gripper}) has grasps labelled by several protocols: "
-                             f"{protocols}")
-        if name not in meshes:
-            meshes[name] = _read_mesh(root / "objects" / f"{name}.h5", name)
-        objects.append(GraspGenObject(
-            name=name, vertices=meshes[name][0], faces=meshes[name][1],
-            T_tcp=column_array(part, "pose_object", (4, 4)),
-            success=part.column("success").to_numpy(zero_copy_only=False).astype(bool),
-            gripper=gripper, grasp_ids=part.column("grasp_id").to_numpy(), protocol=str(protocols[0]),
-            firm=part.column("firm").fill_null(False).to_numpy(zero_copy_only=False).astype(bool) if has_firm
-            else None,
-        ))
+    objects = _objects_of(root, path, wanted + (["firm"] if has_firm else []), has_firm)
     return [f"graspgen/{rel}" for rel in write_graspgen(root / "graspgen", objects, valid_fraction=valid_fraction)]
+
+
+def _objects_of(root: Path, path: Path, columns: list[str], has_firm: bool) -> Iterator[GraspGenObject]:
+    """One :class:`GraspGenObject` per (object, gripper) of the table, in that order, read one object at a time."""
+    for name, rows in objects_of_table(path, columns):
+        _check_name(name, str(path))
+        grippers = np.asarray(rows.column("gripper").to_pylist(), dtype=object)
+        vertices, faces = _read_mesh(root / "objects" / f"{name}.h5", name)
+        for gripper in sorted({str(g) for g in grippers}):
+            part = rows.take(pa.array(np.flatnonzero(grippers == gripper)))
+            protocols = sorted(set(part.column("protocol").to_pylist()))
+            if len(protocols) != 1:
+                raise InputError(f"{path}: object {name!r} ({gripper}) has grasps labelled by several protocols: "
+                                 f"{protocols}")
+            yield GraspGenObject(
+                name=name, vertices=vertices, faces=faces,
+                T_tcp=column_array(part, "pose_object", (4, 4)),
+                success=part.column("success").to_numpy(zero_copy_only=False).astype(bool),
+                gripper=gripper, grasp_ids=part.column("grasp_id").to_numpy(), protocol=str(protocols[0]),
+                firm=part.column("firm").fill_null(False).to_numpy(zero_copy_only=False).astype(bool) if has_firm
+                else None,
+            )
 
 
 def _read_mesh(path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -349,7 +396,9 @@ def _read_mesh(path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 def read_graspgen(root: str | Path) -> list[GraspGenEntry]:
     """Read a GraspGen-layout folder (the module docstring's layout): every ``grasp_data/<gripper>/*.json`` but
-    ``map_uuid_to_path.json``, with its split from ``splits/<gripper>/{train,valid}.txt``.
+    ``map_uuid_to_path.json``, with its split from ``splits/<gripper>/{train,valid}.txt``. The gripper folders may
+    have GraspGen's names (``franka_panda``: exports from now on, and GraspGen's own data) or ours (``panda``: older
+    exports); each entry names the folder it came from (``folder``) and our gripper (``gripper``).
 
     Parameters
     ----------
@@ -359,7 +408,7 @@ def read_graspgen(root: str | Path) -> list[GraspGenEntry]:
     Returns
     -------
     list of GraspGenEntry
-        Sorted by gripper, then file name.
+        Sorted by folder, then file name.
 
     Raises
     ------
@@ -417,6 +466,7 @@ def _read_entry(path: Path, root: Path, gripper: str, split_of_key: Mapping[str,
         raise InputError(f"{path}: grasps.firm_hold must be {len(T)} booleans (one per transform), got shape "
                          f"{firm.shape} of {firm.dtype}")
     grip = data.get("gripper") or {}
+    ours = str(grip.get("source_gripper") or _OUR_NAME.get(gripper, gripper))
     success = success.astype(bool)
     firm = None if firm is None else firm.astype(bool)
     for a in (T, success, ids, firm):
@@ -424,7 +474,7 @@ def _read_entry(path: Path, root: Path, gripper: str, split_of_key: Mapping[str,
             a.setflags(write=False)
     name = path.name[: -len(".grasps.json")] if path.name.endswith(".grasps.json") else path.stem
     return GraspGenEntry(
-        key=key, name=name, gripper=gripper, split=split_of_key.get(key), mesh_path=root / "objects" / key,
+        key=key, name=name, gripper=ours, split=split_of_key.get(key), mesh_path=root / "objects" / key,
         scale=scale, transforms=T, success=success, depth=float(grip["depth"]) if "depth" in grip else None,
-        grasp_ids=ids, protocol=str(grasps.get("protocol", "")), path=path, firm=firm,
+        grasp_ids=ids, protocol=str(grasps.get("protocol", "")), path=path, firm=firm, folder=gripper,
     )

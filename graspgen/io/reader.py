@@ -15,6 +15,12 @@ used)::
     points, ids = view.cloud("camera")            # (N, 3) float32 m, (N,) int16 segmentation ids
     for sample in ds.samples(outcome="success"):  # (scene, view, its grasps) for training
         ...
+    mug = ds.object_grasps("mug")                 # one object's free-space set: only its row groups are read
+    placed = ds.placed_grasps("scene_000000")     # the sets placed in one scene
+
+The object sets are read from ``object_grasps.parquet`` / ``placed_grasps.parquet`` (row groups of whole objects /
+scenes, selected by their statistics) or from folders ``object_grasps/`` / ``placed_grasps/`` of Parquet files of
+the same schema (e.g. one file per object).
 
 Conventions (as in the shards): metres, radians; poses map a frame to the world (``pose_world``: TCP to world,
 z approach, x closing); cameras are OpenCV (x right, y down, z forward) with ``T_world_camera`` camera-to-world;
@@ -285,6 +291,67 @@ class GraspDataset:
                 raise KeyError(f"no column {unknown[0]!r}; columns: {', '.join(self.schema.names)}")
         return pq.read_table(self.root / "grasps.parquet", columns=cols, filters=expr)
 
+    def _matching_scenes(self, where: Mapping[str, Any]) -> Iterator[str]:
+        """Scene ids with a grasp that matches, read one row group at a time (ids only)."""
+        import pyarrow.dataset as pads
+
+        expr = self._expression(None, where)
+        (fragment,) = pads.dataset(self.root / "grasps.parquet", format="parquet").get_fragments()
+        for group in fragment.split_by_row_group(filter=expr):
+            yield from group.to_table(columns=["scene_id"], filter=expr).column("scene_id").unique().to_pylist()
+
+    # -- object-centric sets ----------------------------------------------------------------------------------
+
+    def object_grasps(
+        self, object_name: str | Sequence[str] | None = None, columns: Sequence[str] | None = None,
+        filter: pc.Expression | None = None, **where: Any,
+    ) -> pa.Table:
+        """Rows of the object-centric sets (``object_grasps.parquet``, free-space labels), sorted by object.
+
+        ``object_name`` (one or a list) reads only the row groups (or files) that can hold those objects, by their
+        ``object_name`` statistics, so one object costs about one row group however many objects the set has.
+        ``columns``, ``filter`` and ``**where`` are as in :meth:`grasps`. Either layout is read: one file
+        ``object_grasps.parquet`` (row groups of whole objects, by name) or a folder ``object_grasps/`` of Parquet
+        files of that schema (e.g. one per object).
+
+        Raises
+        ------
+        KeyError
+            The dataset has no object sets, or an unknown column.
+        """
+        return self._set_rows("object_grasps", "object_name", object_name, columns, filter, where)
+
+    def placed_grasps(
+        self, scene_id: str | Sequence[str] | None = None, columns: Sequence[str] | None = None,
+        filter: pc.Expression | None = None, **where: Any,
+    ) -> pa.Table:
+        """Rows of the object sets placed in the scenes (``placed_grasps.parquet``), as :meth:`object_grasps`
+        with ``scene_id`` selecting row groups (whole scenes each)."""
+        return self._set_rows("placed_grasps", "scene_id", scene_id, columns, filter, where)
+
+    def _set_rows(self, name: str, key: str, value: Any, columns: Sequence[str] | None,
+                  filter: pc.Expression | None, where: Mapping[str, Any]) -> pa.Table:
+        source = _set_source(self.root, name)
+        schema = source.schema
+        cols = None if columns is None else list(columns)
+        for c in [*(cols or []), *where]:
+            if c not in schema.names:
+                raise KeyError(f"no column {c!r} in {name}; columns: {', '.join(schema.names)}")
+        values = None if value is None else sorted({value} if isinstance(value, str) else set(value))
+        conditions = dict(where) if values is None else {**where, key: values}
+        expr = filter
+        for column, v in conditions.items():
+            vs = list(v) if isinstance(v, (list, tuple, set, frozenset)) else [v]
+            e = pc.field(column).isin(vs) if len(vs) != 1 else pc.field(column) == vs[0]
+            expr = e if expr is None else expr & e
+        parts = []
+        for part in source.parts(key, values):
+            part = part if expr is None else part.filter(expr)
+            parts.append(part if cols is None else part.select(cols))
+        if not parts:
+            return schema.empty_table() if cols is None else schema.empty_table().select(cols)
+        return pa.concat_tables(parts)
+
     def grasp(self, scene_id: str, grasp_id: int) -> Grasp:
         """One grasp by its ids (every column)."""
         t = self.grasps(scene_id=scene_id, grasp_id=int(grasp_id))
@@ -417,7 +484,7 @@ class _TorchSamples:
         self.labels = [c for c in labels if c in ds.columns]
         self.frame = frame
         self.where = dict(where)
-        scenes = ds.grasps(columns=["scene_id"], **where).column("scene_id").unique().to_pylist()
+        scenes = set(ds._matching_scenes(where))  # one row group's ids at a time, not the whole column
         self.items: list[tuple[str, int]] = []
         for sid in sorted(scenes):
             n = ds.scene(sid).num_views
@@ -473,3 +540,43 @@ def __getattr__(name: str) -> Any:
         globals()["TorchDataset"] = cls
         return cls
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+class _SetSource:
+    """One object-set table in either layout: a file (its row groups) or a folder of files (each file's groups)."""
+
+    def __init__(self, paths: list[Path]):
+        self.paths = paths
+        self.schema = pq.read_schema(paths[0])
+        self.groups_read = 0
+        """Row groups read so far (what a selection cost)."""
+
+    def parts(self, key: str, values: list[str] | None) -> Iterator[pa.Table]:
+        """The row groups that can hold rows with ``key`` in ``values`` (all when None), in file order, read one
+        at a time; the others are skipped by their ``key`` statistics, unread."""
+        for path in self.paths:
+            pf = pq.ParquetFile(path)
+            leaves = pf.metadata.schema
+            column = next(j for j in range(len(leaves)) if leaves.column(j).path == key)
+            for i in range(pf.metadata.num_row_groups):
+                if values is None or _may_hold(pf.metadata.row_group(i).column(column).statistics, values):
+                    self.groups_read += 1
+                    yield pf.read_row_group(i)
+
+
+def _may_hold(stats: Any, values: list[str]) -> bool:
+    """Whether a row group with these column statistics can hold one of ``values`` (yes when it has none)."""
+    if stats is None or not stats.has_min_max:
+        return True
+    return any(stats.min <= v <= stats.max for v in values)
+
+
+def _set_source(root: Path, name: str) -> _SetSource:
+    one = root / f"{name}.parquet"
+    if one.is_file():
+        return _SetSource([one])
+    folder = root / name
+    files = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
+    if not files:
+        raise KeyError(f"no {name} in {root} (neither {one.name} nor a folder {name}/ of Parquet files)")
+    return _SetSource(files)

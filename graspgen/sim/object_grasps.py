@@ -115,11 +115,12 @@ import numpy as np
 import pyarrow as pa
 import trimesh
 
-from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal
+from graspgen.geometry.antipodal import AntipodalParams
 from graspgen.io.arrow import fixed_list, variable_list
 from graspgen.io.objects import ObjectRecord
 from graspgen.quality.epsilon import EpsilonParams, object_geometry
 from graspgen.quality.robustness import perturbed_poses, rotvec_to_matrix
+from graspgen.sim.candidate_pool import CandidatePool, collision_cap
 from graspgen.sim.grippers import GripperSpec, attach_gripper, load_gripper
 from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator, Outcome, RolloutResult
 from graspgen.sim.scene_model import free_space_spec, object_body_name, placed_object
@@ -148,10 +149,6 @@ LABELS: tuple[str, ...] = ("held", "firm")
 
 CANDIDATES: tuple[str, ...] = ("antipodal", "near_miss")
 """Values of the ``candidate`` column."""
-
-EMPTY_REFILLS = 3
-"""Consecutive sampler calls without a single candidate after which the object is given up (too big or too thin
-for the gripper)."""
 
 SCHEMA = pa.schema(
     [
@@ -437,38 +434,6 @@ def free_space_simulator(record: ObjectRecord, gripper: str, lift: LiftParams,
 # ---------------------------------------------------------------------------------------------------------------
 
 
-class _Pool:
-    """Unused antipodal candidates (poses, widths, depths), shuffled, refilled from the sampler when short."""
-
-    def __init__(self, mesh: trimesh.Trimesh, gripper: GripperSpec, params: AntipodalParams,
-                 rng: np.random.Generator) -> None:
-        self.mesh, self.gripper, self.params, self.rng = mesh, gripper, params, rng
-        self.pose = np.zeros((0, 4, 4))
-        self.width = np.zeros(0)
-        self.depth = np.zeros(0)
-        self.sampled = 0
-
-    def take(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The next ``k`` candidates, or fewer when the sampler keeps finding none (``EMPTY_REFILLS`` calls)."""
-        empty = 0
-        while len(self.width) < k and empty < EMPTY_REFILLS:
-            cands = sample_antipodal(self.mesh, self.gripper, self.params, self.rng)
-            n = len(cands)
-            self.sampled += n
-            if n == 0:
-                empty += 1
-                continue
-            empty = 0
-            order = self.rng.permutation(n)
-            self.pose = np.concatenate([self.pose, cands.pose_object[order]])
-            self.width = np.concatenate([self.width, cands.width[order]])
-            self.depth = np.concatenate([self.depth, cands.depth[order]])
-        k = min(k, len(self.width))
-        out = self.pose[:k], self.width[:k], self.depth[:k]
-        self.pose, self.width, self.depth = self.pose[k:], self.width[k:], self.depth[k:]
-        return out
-
-
 def _object_frame(result: RolloutResult) -> np.ndarray:
     """World -> object frame when the contacts were recorded (end of closing); the identity (the object's initial
     pose) when closing was not reached."""
@@ -524,14 +489,14 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
     geometry = object_geometry(record)
     simulator, body = free_space_simulator(record, params.gripper, lift, friction)
     mesh = trimesh.Trimesh(np.asarray(record.vertices, dtype=np.float64), np.asarray(record.faces), process=False)
-    pool = _Pool(mesh, gripper, params.sampler, rng)
+    pool = CandidatePool(mesh, gripper, params.sampler, rng)
 
     n_near_late = round(params.near_miss_fraction_when_positives_met * params.batch_size)
     counts = np.zeros(len(OUTCOME_NAMES), dtype=np.int64)
     by_kind = {k: np.zeros(len(OUTCOME_NAMES), dtype=np.int64) for k in CANDIDATES}  # outcome counts per kind
     kept: list[tuple[str, np.ndarray, float, RolloutResult]] = []
     positives = negatives = tried = collisions = 0
-    collision_cap = math.floor(params.collision_share * params.target_negatives + 1e-9)
+    max_collisions = collision_cap(params.collision_share, params.target_negatives)
     stopped = "max_candidates"
     good_pose: list[np.ndarray] = []  # the antipodal candidates that succeeded: the near misses' parents
     good_width: list[float] = []
@@ -575,7 +540,7 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
                     kept.append((kind, T, w, result))
             elif negatives < params.target_negatives:
                 if result.code <= Outcome.COLLISION_WITH_CLUTTER:
-                    if collisions >= collision_cap:
+                    if collisions >= max_collisions:
                         continue
                     collisions += 1
                 negatives += 1

@@ -1,0 +1,147 @@
+"""Parquet files written one table at a time, whole tables (scenes, objects' sets) per row group.
+
+:class:`GroupedParquetWriter` is fed the tables in order and writes a row group whenever the next table would take
+it past ``row_group_rows`` rows, so a file of any size is written holding one row group's tables;
+:func:`write_grasps_parquet` writes an iterable of tables with it. The settings are those of
+:func:`graspgen.io.files.write_parquet` (zstd 3, dictionaries, statistics, no pandas metadata, no timestamps): the
+bytes are a function of the tables and the packing alone (:mod:`graspgen.io.dataset_table` uses both for the
+published tables).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from graspgen.errors import InputError
+
+__all__ = ["GroupedParquetWriter", "write_grasps_parquet"]
+
+
+def write_grasps_parquet(
+    path: str | Path,
+    scenes: Iterable[pa.Table],
+    *,
+    row_group_rows: int,
+    metadata: Mapping[bytes, bytes],
+) -> int:
+    """Write the merged scenes to one Parquet file, whole scenes per row group; returns the number of rows.
+
+    ``scenes`` may be any iterable (a generator reading one shard at a time): it is consumed once, and only one
+    row group's tables are held (:class:`GroupedParquetWriter`). The settings are those of
+    :func:`graspgen.io.files.write_parquet` (zstd 3, dictionaries, statistics, no pandas metadata), so the bytes
+    are a function of the tables alone. Row groups: consecutive scenes packed until the next would take the group
+    past ``row_group_rows`` rows. The same goes for any list of tables of one schema (objects' grasp sets: whole
+    objects per group).
+    """
+    writer = GroupedParquetWriter(path, row_group_rows=row_group_rows, metadata=metadata)
+    with writer:
+        for table in scenes:
+            writer.add(table)
+    return writer.rows
+
+
+class GroupedParquetWriter:
+    """A Parquet writer fed one table (a scene, an object's set) at a time, whole tables per row group.
+
+    Tables are buffered until the next would take the group past ``row_group_rows`` rows; then the buffer is
+    written as one row group (a larger table gets a group of its own). So memory holds at most one row group's
+    tables, whatever the number of tables, and the bytes are those of writing all tables at once with the same
+    packing. Every table must have the first one's schema, metadata included; the file's schema is it with
+    ``metadata``. Use as a context manager: leaving it normally writes the last group and closes the file;
+    leaving it by an exception closes the file without the last group (the caller's atomic write discards it).
+
+    Parameters
+    ----------
+    path : path
+        The file to write.
+    row_group_rows : int
+        Rows per row group, about (> 0).
+    metadata : mapping of bytes to bytes
+        The file's schema metadata.
+
+    Raises
+    ------
+    InputError
+        (from :meth:`add`) a table with other columns than the first; (on close) no table at all.
+    """
+
+    def __init__(self, path: str | Path, *, row_group_rows: int, metadata: Mapping[bytes, bytes]):
+        self.path = path
+        self.row_group_rows = int(row_group_rows)
+        self.metadata = dict(metadata)
+        self.rows = 0
+        """Rows written so far (all rows once closed)."""
+        self.schema: pa.Schema | None = None
+        """The file's schema (the first table's, with ``metadata``); None before the first table."""
+        self.tables = 0
+        """Tables added."""
+        self._first: pa.Schema | None = None
+        self._first_name = ""
+        self._group: list[pa.Table] = []
+        self._group_rows = 0
+        self._writer: pq.ParquetWriter | None = None
+
+    def __enter__(self) -> GroupedParquetWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close()
+        elif self._writer is not None:
+            self._writer.close()
+
+    def add(self, table: pa.Table) -> None:
+        """Add one table (a scene, an object's set); a full group is written first when it would not fit."""
+        if self._first is None:
+            self._first, self._first_name = table.schema, _scene_of(table)
+            self.schema = table.schema.with_metadata(self.metadata)
+        elif not table.schema.equals(self._first, check_metadata=True):
+            raise InputError(f"dataset: scene {_scene_of(table)} has other columns than {self._first_name}")
+        self.tables += 1
+        if len(table) == 0:
+            return
+        if self._group and self._group_rows + len(table) > self.row_group_rows:
+            self._flush()
+        self._group.append(table)
+        self._group_rows += len(table)
+
+    def close(self) -> None:
+        """Write the last group and close the file."""
+        if self.schema is None:
+            raise InputError("dataset: no scene to write")
+        self._flush()
+        self._open().close()
+
+    def _open(self) -> pq.ParquetWriter:
+        if self._writer is None:
+            self._writer = pq.ParquetWriter(
+                self.path,
+                self.schema,
+                compression="zstd",
+                compression_level=3,
+                use_dictionary=True,
+                write_statistics=True,
+                store_schema=True,
+            )
+        return self._writer
+
+    def _flush(self) -> None:
+        if not self._group:
+            return
+        table = pa.concat_tables(self._group).cast(self.schema).combine_chunks()
+        self._group, self._group_rows = [], 0
+        self._open().write_table(table, row_group_size=len(table))
+        self.rows += len(table)
+
+
+def _scene_of(table: pa.Table) -> str:
+    """The first id column's first value (the scene, or the object of an object set), for messages."""
+    for name in ("scene_id", "object_name"):
+        if name in table.column_names and len(table):
+            return str(table.column(name)[0].as_py())
+    return "(empty)"
