@@ -87,13 +87,15 @@ def _peak_kb(pid: int) -> tuple[int, str] | None:
     return hwm, cmd
 
 
-def _role(cmd: str, root_pid: int, pid: int) -> str:
+def _role(cmd: str, root_pid: int, pid: int, cluster: bool) -> str:
     if pid == root_pid:
         return "scheduler"
     if "loky" in cmd:
         return "loky_worker"
-    if "dask" in cmd and "worker" in cmd:
-        return "dask_worker"
+    if cluster:  # the cluster's processes: dask's scheduler, the nanny, and the worker processes it spawns
+        if "dask scheduler" in cmd:
+            return "dask_scheduler"
+        return "dask_nanny" if "dask worker" in cmd else "dask_worker"
     return "other"
 
 
@@ -103,6 +105,7 @@ class PeakMemory:
     def __init__(self, root_pid: int, extra: tuple[int, ...] = ()):
         self.root_pid, self.extra = root_pid, extra
         self.peaks: dict[int, tuple[int, str]] = {}
+        self.in_cluster: set[int] = set()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
         self._thread.start()
@@ -114,6 +117,8 @@ class PeakMemory:
                     got = _peak_kb(child)
                     if got is not None and got[0] >= self.peaks.get(child, (0, ""))[0]:
                         self.peaks[child] = got
+                    if pid in self.extra:
+                        self.in_cluster.add(child)
             self._stop.wait(0.2)
 
     def stop(self) -> dict[str, float]:
@@ -121,7 +126,7 @@ class PeakMemory:
         self._thread.join()
         by_role: dict[str, float] = {}
         for pid, (kb, cmd) in self.peaks.items():
-            role = _role(cmd, self.root_pid, pid)
+            role = _role(cmd, self.root_pid, pid, pid in self.in_cluster)
             by_role[role] = max(by_role.get(role, 0.0), round(kb / 1024, 1))
         return by_role
 

@@ -13,6 +13,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import types
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,12 @@ def _jsonable(obj: Any) -> Any:
         return obj
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: _jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj) if not _omitted(obj, f)}
+    # Containers are walked here, not first converted whole by to_dict: a key's upstream part can hold thousands
+    # of keys, and converting it at every level made hashing it quadratic in its depth times its size.
+    if isinstance(obj, (dict, types.MappingProxyType)):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
     obj = to_dict(obj)
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
@@ -86,6 +93,11 @@ def params_digest(params: Any) -> str:
     return sha256_text(canonical_json(params))
 
 
+def upstream_digest(upstream: Any) -> str:
+    """The ``upstream`` part of a key (and of a seed key): sha256 of the canonical JSON of ``{stage: {task: key}}``."""
+    return sha256_text(canonical_json(upstream))
+
+
 def key_parts(
     *,
     stage: str,
@@ -93,11 +105,12 @@ def key_parts(
     params: Any,
     task_id: str,
     payload: Any,
-    upstream: dict[str, dict[str, str]],
+    upstream: dict[str, dict[str, str]] | None,
     input_hashes: dict[str, str],
     code: dict[str, str] | None = None,
     seed: int = 0,
     params_hash: str | None = None,
+    upstream_hash: str | None = None,
 ) -> dict[str, str]:
     """The hashed components of a task key, kept apart so ``gen status`` can say which one changed.
 
@@ -105,14 +118,15 @@ def key_parts(
     (``code:<path>``) and per package (``package:<name>``), so a change names the file or the package.
     ``seed`` is the run's seed (``run.seed``): a ``seed`` part when not 0, none at 0, so seed 0 gives the keys of
     runs made before the seed existed. It reaches the seed key too (:func:`seed_key` keeps every part but code).
-    ``params_hash``, when given, is :func:`params_digest` of ``params`` computed once for all of a stage's tasks.
+    ``params_hash``, when given, is :func:`params_digest` of ``params`` computed once for all of a stage's tasks;
+    ``upstream_hash`` likewise :func:`upstream_digest` of ``upstream`` (then ``upstream`` is not read).
     """
     return {
         "scheme": str(KEY_SCHEME),
         "stage": f"{stage}@{version}",
         "params": params_hash if params_hash is not None else params_digest(params),
         "task": sha256_text(canonical_json({"id": task_id, "payload": payload})),
-        "upstream": sha256_text(canonical_json(upstream)),
+        "upstream": upstream_hash if upstream_hash is not None else upstream_digest(upstream),
         "inputs": sha256_text(canonical_json(input_hashes)),
         **({"seed": str(int(seed))} if seed else {}),
         **(code or {}),
@@ -158,7 +172,8 @@ SEED_SCHEME = 1
 code): the draws of every task stay what they were then."""
 
 
-def seed_key(parts: dict[str, str], upstream_seeds: dict[str, dict[str, str]]) -> str:
+def seed_key(parts: dict[str, str], upstream_seeds: dict[str, dict[str, str]] | None,
+             upstream_seeds_hash: str | None = None) -> str:
     """The key a task's random generator is seeded from: its content key without the code and package parts, with
     the upstream shards named by their own seed keys. The run's ``seed`` part (:func:`key_parts`) stays in, so
     another ``run.seed`` gives every task other draws.
@@ -168,7 +183,8 @@ def seed_key(parts: dict[str, str], upstream_seeds: dict[str, dict[str, str]]) -
     and a refactor that changes no behaviour reproduces every byte.
     """
     data = {k: v for k, v in parts.items() if not k.startswith(("code:", "package:"))}
-    data.update(scheme=str(SEED_SCHEME), upstream=sha256_text(canonical_json(upstream_seeds)))
+    digest = upstream_seeds_hash if upstream_seeds_hash is not None else upstream_digest(upstream_seeds)
+    data.update(scheme=str(SEED_SCHEME), upstream=digest)
     return task_key(data)
 
 

@@ -29,7 +29,16 @@ import joblib
 from pipeline.config import RunConfig, to_yaml
 from pipeline.errors import ConfigError, GenError, StageError
 from pipeline.fingerprint import stage_fingerprint
-from pipeline.keys import changed_parts, key_parts, params_digest, rng_for_key, seed_key, sha256_file, task_key
+from pipeline.keys import (
+    changed_parts,
+    key_parts,
+    params_digest,
+    rng_for_key,
+    seed_key,
+    sha256_file,
+    task_key,
+    upstream_digest,
+)
 from pipeline.stage import RunContext, Stage, Task, Upstream, stage_waves, topological_order
 from pipeline.store import (
     Entry,
@@ -167,7 +176,13 @@ def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> lis
     code = stage_fingerprint(type(stage).__module__)
     params_hash = params_digest(params)  # the same for every task: hashed once, not once per task
     planned = []
+    every: tuple[str, str] | None = None  # the upstream digests of a task that reads everything: the same for all
     for t in tasks:
+        if t.needs is not None:
+            up = (upstream_digest(upstream.keys(t.needs)), upstream_digest(upstream.seeds(t.needs)))
+        else:
+            every = every or (upstream_digest(upstream.keys(None)), upstream_digest(upstream.seeds(None)))
+            up = every
         hashes = {}
         for i, path in enumerate(t.inputs):
             if path not in file_hashes:
@@ -180,12 +195,13 @@ def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> lis
             params_hash=params_hash,
             task_id=t.id,
             payload=t.payload,
-            upstream=upstream.keys(t.needs),
+            upstream=None,
+            upstream_hash=up[0],
             input_hashes=hashes,
             code=code,
             seed=seed,
         )
-        planned.append(PlannedTask(t, task_key(parts), parts, seed_key(parts, upstream.seeds(t.needs))))
+        planned.append(PlannedTask(t, task_key(parts), parts, seed_key(parts, None, upstream_seeds_hash=up[1])))
     return planned
 
 
