@@ -47,6 +47,8 @@ from pathlib import Path
 
 import yaml
 
+from pipeline.store import MANIFEST, Manifest
+
 ROOT = Path(__file__).resolve().parent.parent
 GEN = [sys.executable, "-m", "graspgen_cli.app"]
 ACRONYM_OBJECTS = 8872
@@ -179,21 +181,12 @@ def write_config(n: int, out: Path, cache: Path, jobs: int, dask_address: str | 
 
 
 def stage_task_cpu(out: Path) -> dict[str, dict[str, float]]:
-    """Per stage: tasks, their CPU seconds (from the manifests), wall seconds."""
+    """Per stage: tasks, their CPU seconds (from the manifests, latest entry per key), wall seconds."""
     result = {}
-    for manifest in sorted((out / "shards").glob("*/manifest.jsonl")):
-        cpu = wall = 0.0
-        tasks = 0
-        for line in manifest.read_text().splitlines():
-            try:
-                entry = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if entry.get("status") == "ok":
-                tasks += 1
-                cpu += entry.get("cpu_seconds", 0.0)
-                wall += entry.get("seconds", 0.0)
-        result[manifest.parent.name] = {"tasks": tasks, "cpu_s": round(cpu, 2), "wall_s": round(wall, 2)}
+    for manifest in sorted((out / "shards").glob(f"*/{MANIFEST}")):
+        ok = [e for e in Manifest(manifest.parent).entries().values() if e.status == "ok"]
+        result[manifest.parent.name] = {"tasks": len(ok), "cpu_s": round(sum(e.cpu_seconds for e in ok), 2),
+                                        "wall_s": round(sum(e.seconds for e in ok), 2)}
     return result
 
 

@@ -11,6 +11,7 @@ import coacd
 import numpy as np
 import pytest
 import trimesh
+from shapes import l_shape
 
 from graspgen.errors import SettingsError
 from graspgen.geometry.convex import CoacdParams, _coacd_cache_key, convex_decomposition, hull_slack
@@ -33,13 +34,6 @@ def notched_box(depth: float) -> trimesh.Trimesh:
     assert mesh.is_watertight and mesh.volume > 0
     return mesh
 
-
-def l_shape() -> trimesh.Trimesh:
-    a = trimesh.creation.box((0.1, 0.02, 0.02))
-    a.apply_translation((0.05, 0.01, 0.01))
-    b = trimesh.creation.box((0.02, 0.1, 0.02))
-    b.apply_translation((0.01, 0.05, 0.01))
-    return a.union(b)
 
 
 class Recorder:

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from shapes import l_shape
 
 from graspgen.geometry.convex import hull_slack
 from graspgen.geometry.repair import repair_mesh
@@ -35,14 +36,6 @@ def clip(points: np.ndarray, normal, offset: float = 0.0) -> tuple[np.ndarray, n
     cut = v[crossing[:, 0]] + t[:, None] * (v[crossing[:, 1]] - v[crossing[:, 0]])
     return part(trimesh.PointCloud(np.concatenate([v[side <= 0], cut])))
 
-
-def l_shape() -> trimesh.Trimesh:
-    """Two 0.1 x 0.02 x 0.02 m bars meeting at a corner (as in test_mesh_prep)."""
-    a = trimesh.creation.box((0.1, 0.02, 0.02))
-    a.apply_translation((0.05, 0.01, 0.01))
-    b = trimesh.creation.box((0.02, 0.1, 0.02))
-    b.apply_translation((0.01, 0.05, 0.01))
-    return a.union(b)
 
 
 def cup(outer: float, inner: float, height: float, bottom: float) -> trimesh.Trimesh:

@@ -10,6 +10,7 @@ import coacd
 import numpy as np
 import pytest
 import trimesh
+from shapes import l_shape
 
 from graspgen.errors import InputError
 from graspgen.geometry.convex import CoacdParams, _convex_part, _read_parts, _write_parts, convex_decomposition
@@ -36,14 +37,6 @@ DENSITY = 800.0  # kg/m^3
 # Helpers
 # ---------------------------------------------------------------------------------------------------------------
 
-
-def l_shape() -> trimesh.Trimesh:
-    """Two 0.1 x 0.02 x 0.02 m bars meeting at a corner; volume 2 * 4e-5 - 8e-6 = 7.2e-5 m^3."""
-    a = trimesh.creation.box((0.1, 0.02, 0.02))
-    a.apply_translation((0.05, 0.01, 0.01))
-    b = trimesh.creation.box((0.02, 0.1, 0.02))
-    b.apply_translation((0.01, 0.05, 0.01))
-    return a.union(b)
 
 
 L_VOLUME = 2 * 0.1 * 0.02 * 0.02 - 0.02**3

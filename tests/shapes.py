@@ -1,0 +1,14 @@
+"""Test meshes with known geometry, shared by the mesh-preparation, hull-slack and convex-rule tests."""
+
+from __future__ import annotations
+
+import trimesh
+
+
+def l_shape() -> trimesh.Trimesh:
+    """Two 0.1 x 0.02 x 0.02 m bars meeting at a corner; volume 2 * 4e-5 - 8e-6 = 7.2e-5 m^3."""
+    a = trimesh.creation.box((0.1, 0.02, 0.02))
+    a.apply_translation((0.05, 0.01, 0.01))
+    b = trimesh.creation.box((0.02, 0.1, 0.02))
+    b.apply_translation((0.01, 0.05, 0.01))
+    return a.union(b)
