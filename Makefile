@@ -34,14 +34,15 @@ test: $(STAMP) ## Run the test suite
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP) ## Run the throughput benchmarks (writes bench/results*.json)
-	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+	@for b in bench/bench_*.py; do m=bench.$$(basename $$b .py); echo "== $$m"; $(BIN)/python -m $$m || exit 1; done
 
 repro: $(STAMP) ## Check byte-reproducibility: jobs 1 vs 2, and kill -9 then resume
 	$(BIN)/python -m pipeline.repro --config configs/smoke.yaml --workdir build/repro -- $(BIN)/gen
 
-lint: $(STAMP) ## ruff, and the layer contracts (import-linter, see ARCHITECTURE.md)
-	$(BIN)/ruff check pipeline graspgen stages graspgen_cli tests bench assets
+lint: $(STAMP) ## ruff, the layer contracts (import-linter) and the module/function sizes (see ARCHITECTURE.md)
+	$(BIN)/ruff check pipeline graspgen stages graspgen_cli tests bench studies assets tools
 	$(BIN)/lint-imports --no-cache
+	$(BIN)/python tools/check_sizes.py graspgen pipeline stages graspgen_cli
 
 clean: ## Remove OUT and build products (keeps .venv and the CoACD cache in .cache)
 	rm -rf $(OUT) build

@@ -19,7 +19,7 @@ memory (``VmHWM``), the resident memory after its imports, and CPU and wall seco
 
 Usage::
 
-    python bench/bench_dataset_memory.py --src /work/fresh/out --work /tmp/bench --objects 100 1000
+    python -m bench.bench_dataset_memory --src out --work /tmp/bench --objects 100 1000
 """
 
 from __future__ import annotations
@@ -243,6 +243,7 @@ def main() -> None:
         if not out.exists():  # the inputs as links, the stage's own outputs fresh
             subprocess.run(["cp", "-al", str(shared), str(out)], check=True)
         for phase in ("tasks", "publish", "validate", "read"):
+            # The file as a script, not -m from this checkout: with --code the children import that checkout's code.
             cmd = [sys.executable, __file__, "--src", str(args.src), "--work", str(args.work),
                    *(["--no-exports"] if not exports else []), "--child", phase, str(out)]
             done = subprocess.run(cmd, capture_output=True, text=True, env=env)

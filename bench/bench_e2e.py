@@ -28,7 +28,7 @@ run as one wave and are one row of the table), plus each wave's remaining time (
 1-worker wall time: a long task dispatched last caps the speedup whatever the machine (also given: the same with
 each wave's tasks dealt longest first, which the scheduler approximates with its tasks' cost estimates).
 
-Run: ``python bench/bench_e2e.py [--config configs/default.yaml] [--rounds 2] [--no-dask]``; prints a table and
+Run: ``python -m bench.bench_e2e [--config configs/default.yaml] [--rounds 2] [--no-dask]``; prints a table and
 writes ``bench/results.json``. Linux only (``/proc``).
 """
 
@@ -148,8 +148,8 @@ def _cmdline(pid: int) -> str:
 def run_child(name: str, config: str, out: Path, cache: Path, jobs: int, backend: str = "loky") -> dict:
     """One pipeline run in a fresh process; returns its result plus peak memory of parent and workers (MB)."""
     result_path = WORK / f"{name}.json"
-    cmd = [sys.executable, __file__, "--child", "--config", config, "--out", str(out), "--cache", str(cache),
-           "--jobs", str(jobs), "--backend", backend, "--result", str(result_path)]
+    cmd = [sys.executable, "-m", "bench.bench_e2e", "--child", "--config", config, "--out", str(out),
+           "--cache", str(cache), "--jobs", str(jobs), "--backend", backend, "--result", str(result_path)]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     peaks: dict[int, int] = {}
     kinds: dict[int, str] = {}

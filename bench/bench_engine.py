@@ -1,9 +1,9 @@
 """The engine at 10k+ tasks: what the scheduler, the manifests, ``status`` and a no-op rerun cost per shard.
 
-A two-stage toy pipeline with no domain code (``pipeline`` only): ``items`` has N tasks, each spinning for
-``--work-ms`` of CPU and writing a 2 kB shard from its rng; ``collect`` has one task that reads every ``items``
-shard (as the dataset stage reads its inputs) and publishes a one-line file. For each N it measures, in one
-process (the scheduler's) with ``--jobs`` loky workers:
+The engine tests' toy pipeline (``tests/toy_stages.py``, no domain code): ``numbers`` has N tasks
+(``numbers.count``), each spinning for ``--work-ms`` of CPU and writing a 2 kB shard from its rng; ``sums`` has one
+task that reads every ``numbers`` shard (as the dataset stage reads its inputs) and publishes a one-line file. For
+each N it measures, in one process (the scheduler's) with ``--jobs`` loky workers:
 
 - the cold run: wall time, the tasks' own CPU seconds, and the engine's overhead per task in CPU seconds (so a
   loaded machine does not inflate it): the scheduler process's CPU plus the workers' CPU outside the tasks
@@ -15,16 +15,14 @@ process (the scheduler's) with ``--jobs`` loky workers:
   ``gen status`` does) and the no-op rerun (every task skipped after its shard is checked);
 - peak resident memory of the scheduler process (``ru_maxrss``), sampled after each N.
 
-Run: ``python bench/bench_engine.py [--sizes 1000 10000] [--jobs 2] [--work-ms 5]``; prints a table and writes
+Run: ``python -m bench.bench_engine [--sizes 1000 10000] [--jobs 2] [--work-ms 5]``; prints a table and writes
 ``bench/results_engine.json``. Linear means: per-task figures flat across N.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
-import os
 import platform
 import resource
 import shutil
@@ -36,87 +34,19 @@ import joblib
 import numpy as np
 
 from pipeline.config import RunConfig
-from pipeline.scheduler import Project, run_pipeline, status
-from pipeline.stage import RunContext, Stage, Task, Upstream
+from pipeline.scheduler import run_pipeline
+from pipeline.status import status
 from pipeline.store import Manifest, stage_dir
+from tests.toy_stages import TOY, NumbersParams, ToyConfig, spin
 
-
-def spin(seconds: float) -> float:
-    """Burn ``seconds`` of CPU (not sleep: a sleeping task would hide contention); returns a checksum."""
-    end = time.process_time() + seconds
-    acc = 0.0
-    while time.process_time() < end:
-        acc += sum(i * 0.5 for i in range(200))
-    return acc
-
-
-@dataclasses.dataclass(frozen=True)
-class ItemsParams:
-    count: int = 1000
-    """Tasks."""
-    work_ms: float = 5.0
-    """CPU milliseconds each task spends."""
-
-
-@dataclasses.dataclass(frozen=True)
-class CollectParams:
-    pass
-
-
-@dataclasses.dataclass(frozen=True)
-class BenchConfig:
-    run: RunConfig = dataclasses.field(default_factory=RunConfig)
-    items: ItemsParams = dataclasses.field(default_factory=ItemsParams)
-    collect: CollectParams = dataclasses.field(default_factory=CollectParams)
-
-
-class ItemsStage(Stage):
-    name = "items"
-    version = 1
-    ext = "npy"
-
-    def tasks(self, params: ItemsParams, upstream: Upstream) -> list[Task]:
-        return [Task(id=f"item_{i:06d}") for i in range(params.count)]
-
-    def run(self, task, params, upstream, rng, out: Path, ctx: RunContext):
-        start = time.process_time()
-        spin(params.work_ms / 1000.0)
-        with open(out, "wb") as f:
-            np.save(f, rng.normal(size=256))
-        # The worker's CPU clock after the task: its largest value per pid is that worker's whole CPU time, so
-        # the workers' CPU outside the tasks can be told apart from the tasks' own, whatever the machine's load.
-        return {"cpu": time.process_time() - start, "pid": os.getpid(), "worker_cpu": time.process_time()}
-
-
-class CollectStage(Stage):
-    name = "collect"
-    inputs = ("items",)
-    version = 1
-    ext = "json"
-    published = ("total.txt",)
-
-    def tasks(self, params: CollectParams, upstream: Upstream) -> list[Task]:
-        return [Task(id="total")]
-
-    def run(self, task, params, upstream, rng, out: Path, ctx: RunContext):
-        total = 0.0
-        for i in upstream.ids("items"):  # one shard at a time, as a streaming reader would
-            total += float(np.load(upstream.path("items", i)).sum())
-        out.write_text(json.dumps({"total": total}))
-        return {"inputs": len(upstream.ids("items"))}
-
-    def publish(self, params, shards: Upstream, dest: Path) -> None:
-        total = json.loads(shards.path("collect", "total").read_text())["total"]
-        (dest / "total.txt").write_text(f"{total!r} from {len(shards.ids('items'))} shards\n")
-
-
-BENCH = Project(name="bench_engine", schema=BenchConfig, stages=(ItemsStage(), CollectStage()))
+SHARD_DRAWS = 100
+"""Draws per shard: about 2 kB of JSON."""
 
 
 def _bare_task(i: int, work_ms: float) -> float:
     rng = np.random.default_rng(i)
     spin(work_ms / 1000.0)
-    return float(rng.normal(size=256).sum())
+    return float(rng.normal(size=SHARD_DRAWS).sum())
 
 
 def _timed(fn) -> tuple[float, float, object]:
@@ -128,13 +58,14 @@ def _timed(fn) -> tuple[float, float, object]:
 def measure(n: int, jobs: int, work_ms: float, root: Path) -> dict:
     """One size: cold run, baseline, manifest read, status, no-op rerun."""
     out = root / f"n{n}"
-    config = BenchConfig(
+    config = ToyConfig(
         run=RunConfig(out=str(out), jobs=jobs, cache_dir=str(root / "cache")),
-        items=ItemsParams(count=n, work_ms=work_ms),
+        numbers=NumbersParams(count=n, work_ms=work_ms, size=SHARD_DRAWS),
     )
-    cold_wall, cold_cpu, reports = _timed(lambda: run_pipeline(BENCH, config))
-    assert reports[0].ran == n, reports[0]
-    entries = Manifest(stage_dir(out, "items")).entries()
+    cold_wall, cold_cpu, reports = _timed(lambda: run_pipeline(TOY, config))
+    numbers = next(r for r in reports if r.stage == "numbers")
+    assert numbers.ran == n, numbers
+    entries = Manifest(stage_dir(out, "numbers")).entries()
     task_seconds = sum(e.seconds for e in entries.values())
     task_cpu = sum(e.meta["cpu"] for e in entries.values())
     worker_cpu: dict[int, float] = {}
@@ -145,11 +76,12 @@ def measure(n: int, jobs: int, work_ms: float, root: Path) -> dict:
     base_wall, _, _ = _timed(
         lambda: joblib.Parallel(n_jobs=jobs)(joblib.delayed(_bare_task)(i, work_ms) for i in range(n))
     )
-    manifest_wall, _, _ = _timed(lambda: Manifest(stage_dir(out, "items")).entries())
-    status_wall, status_cpu, states = _timed(lambda: status(BENCH, config))
+    manifest_wall, _, _ = _timed(lambda: Manifest(stage_dir(out, "numbers")).entries())
+    status_wall, status_cpu, states = _timed(lambda: status(TOY, config))
     assert all(s.state == "done" for s in states), states
-    noop_wall, noop_cpu, again = _timed(lambda: run_pipeline(BENCH, config))
-    assert again[0].ran == 0 and again[0].skipped == n, again[0]
+    noop_wall, noop_cpu, again = _timed(lambda: run_pipeline(TOY, config))
+    numbers = next(r for r in again if r.stage == "numbers")
+    assert numbers.ran == 0 and numbers.skipped == n, numbers
     overhead = (cold_wall * jobs - task_seconds) / n
     return {
         "tasks": n,

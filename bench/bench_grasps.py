@@ -19,7 +19,7 @@ The object is prepared like the objects stage does it (repair, units, CoACD part
 most probable stable pose; first run: ~15 s for the mug's CoACD) and placed on a ground plane for the pre-filter.
 The bar (ARCHITECTURE.md, Performance bars): at least 5,000 antipodal candidates per second per core.
 
-Usage: ``python bench/bench_grasps.py [--repeats N] [--out bench/results_grasps.json]``
+Usage: ``python -m bench.bench_grasps [--repeats N] [--out bench/results_grasps.json]``
 """
 
 from __future__ import annotations
@@ -41,12 +41,11 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal, uses_embree  # noqa: E402
 from graspgen.geometry.prepare import prepare_object  # noqa: E402
 from graspgen.geometry.stable_poses import StablePoseParams  # noqa: E402
-from graspgen.sim.grippers import DEFAULT_GRIPPER, load_gripper  # noqa: E402
+from graspgen.grippers import DEFAULT_GRIPPER, load_gripper  # noqa: E402
 from graspgen.sim.prefilter import CollisionChecker, PrefilterParams  # noqa: E402
 from stages.objects import catalog  # noqa: E402
 

@@ -4,21 +4,21 @@ stage's cost per grasp.
 Scene: the bundled box (50 x 70 x 120 mm, 0.27 kg) prepared with :func:`graspgen.geometry.prepare.prepare_object`, in
 its most probable stable pose (flat on its 70 x 120 mm face) on the scenes stage's table
 (:func:`graspgen.sim.scene_model.build_scene_spec`), with the Robotiq 2F-85 attached, compiled once into a
-:class:`graspgen.sim.lift.LiftSimulator` (default :class:`graspgen.sim.lift.LiftParams`), object friction 0.5. Grasps:
-top-down, closing across the 70 mm extent (turned by N(0, 5 deg) about the vertical), offset uniformly by up to 45 mm
-along the 120 mm axis and N(0, 2 mm) across it, TCP 10-30 mm below the top.
+:class:`graspgen.sim.lift.LiftSimulator` (default :class:`graspgen.sim.protocols.LiftParams`), object friction 0.5.
+Grasps: top-down, closing across the 70 mm extent (turned by N(0, 5 deg) about the vertical), offset uniformly by up to
+45 mm along the 120 mm axis and N(0, 2 mm) across it, TCP 10-30 mm below the top.
 
 1. **Epsilon**: the contact sets of those grasps, as the metrics stage sees them: each grasp's rollout contacts at the
    end of closing (1-4 per pad, object frame) when both jaws touched, and its ray-cast closing contacts (3 x 3 rays per
    pad). Timed: :func:`graspgen.quality.epsilon.grasp_epsilon` per contact set, one process (one core), the ``pad``
    model (default) and the ``points`` model; best of ``--rounds`` passes. The ratio is to the bar (2,000/s).
-2. **Robustness**: for successful grasps, :func:`graspgen.quality.robustness.grasp_robustness` with N = 20, 50, 100
+2. **Robustness**: for successful grasps, :func:`graspgen.workflows.robustness.grasp_robustness` with N = 20, 50, 100
    perturbed copies (default sigmas: 5 mm, 5 deg): N rollouts, the epsilon of each copy (ray casts for copies without
    two-jaw contacts). Reported: seconds per grasp, copies (rollouts) per second, the share of the time spent
    outside the rollouts (epsilon, ray casts, bookkeeping), and the copies' outcome histogram. The scene's compile
    (once per task) is reported apart.
 
-Run: ``python bench/bench_metrics.py [--grasps N] [--rounds R] [--seed S]``; prints a table and writes
+Run: ``python -m bench.bench_metrics [--grasps N] [--rounds R] [--seed S]``; prints a table and writes
 ``bench/results_metrics.json``.
 """
 
@@ -39,12 +39,19 @@ import numpy as np
 
 from graspgen.geometry.contacts import closing_contacts
 from graspgen.geometry.prepare import prepare_object
+from graspgen.grippers import DEFAULT_GRIPPER, load_gripper
 from graspgen.io.objects import ObjectRecord
-from graspgen.quality.epsilon import EpsilonParams, contact_set, grasp_epsilon, object_geometry
-from graspgen.quality.robustness import DRAWS_PER_COPY, RobustnessParams, grasp_robustness, rollout_with_object_pose
-from graspgen.sim.grippers import DEFAULT_GRIPPER, attach_gripper, load_gripper
-from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
-from graspgen.sim.scene_model import SupportParams, build_scene_spec, object_body_name, placed_object
+from graspgen.quality.contact_set import contact_set
+from graspgen.quality.epsilon import EpsilonParams, grasp_epsilon
+from graspgen.quality.perturbation import DRAWS_PER_COPY, RobustnessParams
+from graspgen.sim.gripper_model import attach_gripper
+from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams
+from graspgen.sim.scene_model import build_scene_spec, object_body_name, placed_object
+from graspgen.sim.support import SupportParams
+from graspgen.workflows.metrics import object_geometry
+from graspgen.workflows.perturbed_copies import rollout_with_object_pose
+from graspgen.workflows.robustness import grasp_robustness
 from stages.objects import ASSETS, catalog
 
 RESULTS = Path(__file__).resolve().parent / "results_metrics.json"

@@ -4,21 +4,21 @@ Two measurements, in one process:
 
 * **throughput**: every bundled object (``assets/objects``) prepared as the objects stage does (repair, units,
   mass from the catalog density, CoACD parts from the ``.cache/coacd`` cache; no stable-pose physics check: free
-  space does not use it), then :func:`graspgen.sim.object_grasps.label_object_grasps` with the Panda, the
+  space does not use it), then :func:`graspgen.workflows.object_grasps.label_object_grasps` with the Panda, the
   ``acronym`` protocol and ``--positives`` / ``--negatives`` targets (default 100 / 100, ``--max-candidates``
   2,000). Labelled grasps per core-hour = kept rows / CPU seconds of the labelling (``time.process_time``: the
   machine may be shared, so wall time would charge us for other processes) x 3,600; wall-clock figures are
   printed beside it. Preparing the meshes is not counted (the objects stage's work, cached).
 * **baseline ratio**: on one object (``--baseline-object``, default the mug) ``--baseline-n`` candidates (default
   300) labelled with every candidate kept (targets above ``max_candidates``), then the same poses rolled out by
-  plain :func:`graspgen.evaluate.evaluate_grasps` (same mesh, CoACD settings, mass, friction, gripper and
+  plain :func:`graspgen.workflows.evaluate.evaluate_grasps` (same mesh, CoACD settings, mass, friction, gripper and
   protocol, one job) in the same process. evaluate's rate is the slope of two timed calls (``n`` and 10 poses), so
   preparing the mesh and compiling the model do not count; ours includes sampling, near misses, the epsilon and
   the table. Same poses, same outcome mix: the ratio is our overhead per rollout (1.0 = none; < 1: slower).
 
 The goal: at least 100,000 labelled grasps per core-hour (27.8 per CPU second).
 
-Usage: ``python bench/bench_object_grasps.py [--positives 100] [--negatives 100] [--max-candidates 2000]
+Usage: ``python -m bench.bench_object_grasps [--positives 100] [--negatives 100] [--max-candidates 2000]
 [--objects box,mug] [--baseline-object mug] [--baseline-n 300] [--out bench/results_object_grasps.json]``
 """
 
@@ -28,7 +28,6 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -39,14 +38,15 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
-from graspgen.evaluate import CHEAP_COACD, EvaluateParams, evaluate_grasps  # noqa: E402
 from graspgen.geometry.prepare import prepare_object  # noqa: E402
 from graspgen.geometry.stable_poses import StablePoseParams  # noqa: E402
 from graspgen.io.arrow import column_array  # noqa: E402
 from graspgen.io.objects import ObjectRecord  # noqa: E402
-from graspgen.sim.object_grasps import ObjectGraspsParams, label_object_grasps  # noqa: E402
+from graspgen.workflows.evaluate import evaluate_grasps  # noqa: E402
+from graspgen.workflows.evaluate_settings import CHEAP_COACD, EvaluateParams  # noqa: E402
+from graspgen.workflows.object_grasps import label_object_grasps  # noqa: E402
+from graspgen.workflows.object_grasps_settings import ObjectGraspsParams  # noqa: E402
 from stages.objects import ASSETS, catalog  # noqa: E402
 
 GOAL_PER_CORE_HOUR = 100_000.0

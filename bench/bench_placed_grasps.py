@@ -6,16 +6,16 @@ In one process, pinned to one core where the OS allows it:
    ``--scenes``) are made with :func:`pipeline.scheduler.run_pipeline` into ``--out`` (finished work is skipped).
    The object grasp sets come from the ``object_grasps`` stage when the project has one (run there too, with the
    config's ``object_grasps`` section); otherwise they are made here by the library,
-   :func:`graspgen.sim.object_grasps.label_object_grasps` (``--per-object`` rows per object, half successes, half
+   :func:`graspgen.workflows.object_grasps.label_object_grasps` (``--per-object`` rows per object, half successes, half
    failures; ``acronym`` protocol in free space); ``--set`` sizes the stage's sets
    (``--set object_grasps.target_positives=200``). Their cost is reported, not counted in the placed rate: a set is
    made once per object and reused by every scene it appears in (the amortised rate for this bench's scene count is
    printed too).
-2. **Placed** (:func:`graspgen.sim.placed_grasps.place_object_grasps`, default params: grasp pose only, no
+2. **Placed** (:func:`graspgen.workflows.placed_grasps.place_object_grasps`, default params: grasp pose only, no
    re-simulation): every scene; rows, collision-free rows, ACRONYM scene successes.
-3. **Today** (stages ``grasps`` + ``rollouts``): :func:`graspgen.sim.scene_grasps.sample_scene_grasps` (sampling and
-   the pre-filter along the approach) then :func:`graspgen.sim.rollouts.scene_simulator` +
-   :func:`graspgen.sim.rollouts.roll_out_table` (rollouts of the free ones) with the config's ``grasps`` and
+3. **Today** (stages ``grasps`` + ``rollouts``): :func:`graspgen.workflows.scene_grasps.sample_scene_grasps` (sampling
+   and the pre-filter along the approach) then :func:`graspgen.workflows.rollouts.scene_simulator` +
+   :func:`graspgen.workflows.rollouts.roll_out_table` (rollouts of the free ones) with the config's ``grasps`` and
    ``rollouts`` sections and the same task seeds; rows = rows of the rollouts table (every candidate, labelled by
    the pre-filter or a rollout).
 
@@ -24,7 +24,7 @@ measured on either. Rates are per CPU-hour of this process (``time.process_time`
 time is reported too, and the best of ``--rounds`` is kept for each side). Goal: at least 10x today's 38,817 scene
 rows per core-hour in collision-free placed grasps per core-hour.
 
-Usage: ``python bench/bench_placed_grasps.py [--config configs/smoke.yaml] [--scenes 12] [--out DIR]
+Usage: ``python -m bench.bench_placed_grasps [--config configs/smoke.yaml] [--scenes 12] [--out DIR]
 [--per-object 400] [--rounds 2] [--json PATH] [--set KEY=VALUE ...]``
 """
 
@@ -34,7 +34,6 @@ import argparse
 import dataclasses
 import json
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -42,7 +41,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 from graspgen.sim.gl import select_backend  # noqa: E402
 
@@ -53,11 +51,12 @@ import pyarrow as pa  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
 
 from graspgen.io.objects import read_object  # noqa: E402
-from graspgen.sim.placed_grasps import PlacedGraspsParams, place_object_grasps  # noqa: E402
-from graspgen.sim.rollouts import roll_out_table, scene_simulator  # noqa: E402
-from graspgen.sim.scene_grasps import sample_scene_grasps  # noqa: E402
+from graspgen.workflows.placed_grasps import PlacedGraspsParams, place_object_grasps  # noqa: E402
+from graspgen.workflows.rollouts import roll_out_table, scene_simulator  # noqa: E402
+from graspgen.workflows.scene_grasps import sample_scene_grasps  # noqa: E402
 from pipeline.config import load_config  # noqa: E402
-from pipeline.scheduler import committed, run_pipeline  # noqa: E402
+from pipeline.plan import committed  # noqa: E402
+from pipeline.scheduler import run_pipeline  # noqa: E402
 from pipeline.store import stage_dir  # noqa: E402
 from stages.project import PROJECT  # noqa: E402
 
@@ -80,9 +79,10 @@ def _shards(out: Path, stage: str) -> dict[str, Path]:
 
 def _object_sets_here(records: dict, config, per_object: int) -> dict[str, pa.Table]:
     """The object grasp sets made in this process with the library (no ``object_grasps`` stage in the project):
-    :func:`graspgen.sim.object_grasps.label_object_grasps` with the config's ``object_grasps`` section when it has
+    :func:`graspgen.workflows.object_grasps.label_object_grasps` with the config's ``object_grasps`` section when it has
     one, else its defaults with the ``grasps`` gripper; half successes, half failures, ``per_object`` in all."""
-    from graspgen.sim.object_grasps import ObjectGraspsParams, label_object_grasps
+    from graspgen.workflows.object_grasps import label_object_grasps
+    from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
 
     base = getattr(config, "object_grasps", None) or ObjectGraspsParams(gripper=config.grasps.gripper)
     params = dataclasses.replace(base, target_positives=per_object // 2, target_negatives=per_object // 2)

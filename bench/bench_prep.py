@@ -6,8 +6,9 @@ knives, bottles, hats, scissors; README there), its mesh is prepared by
 
 * ``pipeline``: what the ``objects`` stage passes (``stages.objects.ObjectsParams()``: its CoACD and stable-pose
   settings, with the physics settle check; density 700 kg/m^3, at most 0.5 m);
-* ``evaluate``: what ``gen evaluate`` / :func:`graspgen.evaluate.evaluate_grasps` passes in free space
-  (``EvaluateParams().coacd``, one pose and no settle check, as :func:`graspgen.evaluate.evaluation_world`).
+* ``evaluate``: what ``gen evaluate`` / :func:`graspgen.workflows.evaluate.evaluate_grasps` passes in free space
+  (``EvaluateParams().coacd``, one pose and no settle check, as
+  :func:`graspgen.workflows.evaluation_world.evaluation_world`).
 
 Each preparation runs in a fresh child process (``OMP_NUM_THREADS=1``: one core) with no CoACD cache (it measures
 the decomposition, not a cache hit), under a CPU-time cap (``RLIMIT_CPU``; a wall cap, by default 20x, as a
@@ -17,7 +18,7 @@ decomposition, stable poses), the parts and the way the decomposition was made; 
 seconds, overall and per category. ``--profile``
 writes a cProfile of each child (``<out>.prof/<file>.prof``). Run one at a time, ``nice -n 5``.
 
-Run: ``python bench/bench_prep.py [--mode pipeline,evaluate] [--distinct] [--per-category N] [--cap 300]
+Run: ``python -m bench.bench_prep [--mode pipeline,evaluate] [--distinct] [--per-category N] [--cap 300]
 [--only mug,bowl] [--out FILE]``; ``--distinct`` takes one file per mesh (the set holds some meshes at several
 scales), ``--per-category N`` the first N files of each category (a quick run). Writes JSON
 (default ``bench/results_bench_prep.json``), merged with what it holds so a run can be resumed.
@@ -40,9 +41,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
-LEARN = Path(os.environ.get("GRASPGEN_LEARN", "/work/shared/learn/acronym"))
+LEARN = Path(os.environ.get("GRASPGEN_LEARN", ROOT.parent / "shared" / "learn" / "acronym"))
 RESULTS = ROOT / "bench" / "results_bench_prep.json"
 MODES = ("pipeline", "evaluate")
 
@@ -68,8 +68,8 @@ def files(folder: Path, distinct: bool, per_category: int = 0) -> list[dict]:
 
 def prepare_kwargs(mode: str) -> dict:
     """The keyword arguments of ``prepare_object`` the objects stage (``pipeline``) or ``gen evaluate`` uses."""
-    from graspgen.evaluate import EvaluateParams
     from graspgen.geometry.stable_poses import StablePoseParams
+    from graspgen.workflows.evaluate_settings import EvaluateParams
 
     if mode == "pipeline":
         from stages.objects import ObjectsParams
@@ -98,7 +98,7 @@ def child(mesh: str, scale: float, mode: str, profile: str | None) -> dict:
                 steps[name] += time.process_time() - start
         return run
 
-    prepare._cached_convex_decomposition = timed("decomposition", prepare._cached_convex_decomposition)
+    prepare.cached_convex_decomposition = timed("decomposition", prepare.cached_convex_decomposition)
     prepare.stable_poses = timed("stable_poses", prepare.stable_poses)
     kwargs = prepare_kwargs(mode)
     import logging
@@ -134,10 +134,11 @@ def run_one(entry: dict, mode: str, cap: float, wall_cap: float, profile: str | 
     def limit():
         resource.setrlimit(resource.RLIMIT_CPU, (int(cap), int(cap) + 5))
 
-    cmd = [sys.executable, __file__, "--child", json.dumps([entry["mesh"], entry["scale"], mode, profile])]
+    cmd = [sys.executable, "-m", "bench.bench_prep", "--child",
+           json.dumps([entry["mesh"], entry["scale"], mode, profile])]
     start, used = time.perf_counter(), _children_cpu()
     try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=wall_cap, preexec_fn=limit)
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=wall_cap, preexec_fn=limit, cwd=ROOT)
     except subprocess.TimeoutExpired:  # subprocess.run has killed and reaped it: its rusage is counted
         return {**entry, "mode": mode, "cpu_s": None, "cpu_used_s": _children_cpu() - used,
                 "wall_s": time.perf_counter() - start, "capped": "wall"}

@@ -30,7 +30,7 @@ top uniform in [0, 45] mm (the deepest put the fingertips into the table); width
 closing axis (clipped to the 2F-85's 85 mm). Object friction 0.5. A realistic mix of outcomes: table collisions,
 misses past the object's ends, and can grasps above its equator that squeeze it out downwards (slips).
 
-Run: ``python bench/bench_rollouts.py [--rollouts N] [--rounds R] [--seed S] [--gripper G]``; prints a table and writes
+Run: ``python -m bench.bench_rollouts [--rollouts N] [--rounds R] [--seed S] [--gripper G]``; prints a table and writes
 ``bench/results_rollouts.json``.
 """
 
@@ -53,8 +53,12 @@ import numpy as np
 
 from graspgen.geometry.convex import CoacdParams
 from graspgen.geometry.prepare import PreparedObject, prepare_object
-from graspgen.sim import grippers as G
-from graspgen.sim.lift import OUTCOME_NAMES, LiftParams, LiftSimulator
+from graspgen.grippers import DEFAULT_GRIPPER, load_gripper
+from graspgen.sim.gripper_model import attach_gripper
+from graspgen.sim.gripper_state import set_gripper_pose
+from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.physics import physics_options
+from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams
 
 ROOT = Path(__file__).resolve().parents[1]
 OBJECTS = ROOT / "assets" / "objects"
@@ -72,12 +76,12 @@ def load_object(name: str) -> PreparedObject:
                           rng=np.random.default_rng(0), coacd_cache_dir=cache)
 
 
-def build_scene(obj: PreparedObject, gripper: str = G.DEFAULT_GRIPPER) -> tuple[mujoco.MjModel, np.ndarray,
+def build_scene(obj: PreparedObject, gripper: str = DEFAULT_GRIPPER) -> tuple[mujoco.MjModel, np.ndarray,
                                                                                 np.ndarray]:
     """Table + the object in its most probable stable pose + ``gripper``. Returns (model, settled qpos, world
     vertices (n, 3) of the settled object)."""
     spec = mujoco.MjSpec()
-    G.physics_options(spec)
+    physics_options(spec)
     spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
     world = spec.worldbody
     world.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], pos=[0, 0, TABLE_TOP - 0.75])
@@ -100,13 +104,13 @@ def build_scene(obj: PreparedObject, gripper: str = G.DEFAULT_GRIPPER) -> tuple[
                       userface=np.asarray(faces).ravel().tolist())
         body.add_geom(name=f"obj/0_{obj.name}/part_{i}", type=mujoco.mjtGeom.mjGEOM_MESH,
                       meshname=f"{obj.name}_part_{i}", friction=[FRICTION, 0.005, 0.0001])
-    G.attach_gripper(spec, G.load_gripper(gripper))
+    attach_gripper(spec, load_gripper(gripper))
     model = spec.compile()
     # Settle (what the scenes stage does): park the gripper far away, let the object come to rest, keep the qpos.
     data = mujoco.MjData(model)
     away = np.eye(4)
     away[:3, 3] = [2.0, 2.0, 1.0]
-    G.set_gripper_pose(model, data, away)
+    set_gripper_pose(model, data, away)
     mujoco.mj_step(model, data, nstep=250)
     bid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"obj/0_{obj.name}")
     R = data.xmat[bid].reshape(3, 3)
@@ -236,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rollouts", type=int, default=300, help="rollouts per object and setting")
     parser.add_argument("--rounds", type=int, default=3, help="timed passes (the best counts)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--gripper", default=G.DEFAULT_GRIPPER,
+    parser.add_argument("--gripper", default=DEFAULT_GRIPPER,
                         help="bundled gripper name or gripper file (e.g. panda, robotiq_2f85_mesh)")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)

@@ -24,7 +24,7 @@ The cost model printed at the end extrapolates the largest run to ACRONYM's 8,87
 CPU of the object stages as measured (preparation does not depend on the grasp count), the grasp stages' CPU scaled
 by 2,000 / the run's grasps per object, peak memory as the largest measured (flat in N when the streaming holds).
 
-Run: ``python bench/bench_scale.py [--sizes 12 100 1000] [--jobs 2] [--backend loky|dask|both] [--work DIR]``;
+Run: ``python -m bench.bench_scale [--sizes 12 100 1000] [--jobs 2] [--backend loky|dask|both] [--work DIR]``;
 writes ``bench/results_scale.json``.
 """
 
@@ -282,8 +282,6 @@ def measure(n: int, jobs: int, backend: str, work: Path) -> dict:
 
 def _leaves() -> list[str]:
     """The stages but ``dataset`` that no other of them reads: running them runs everything ``dataset`` needs."""
-    if str(ROOT) not in sys.path:
-        sys.path.insert(0, str(ROOT))
     from stages.project import PROJECT
 
     stages = [s for s in PROJECT.stages if s.name != "dataset"]

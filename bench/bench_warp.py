@@ -17,7 +17,7 @@ On the device it finds (the first CUDA GPU, else Warp's CPU device; ``--device``
 * **compile**: wall seconds of the first batch (kernel compilation, cold or warm as the cache is; ``--kernel-cache
   DIR`` points Warp at a folder, an empty one measures a cold compile) and of the second (warm).
 
-Run: ``python bench/bench_warp.py [--device cuda:0] [--objects 5] [--grasps 100] [--batches 256,...]``; writes
+Run: ``python -m bench.bench_warp [--device cuda:0] [--objects 5] [--grasps 100] [--batches 256,...]``; writes
 ``--out`` (JSON; default ``bench/results_warp.json``). Needs the warp extra (``pip install -e '.[warp]'``).
 """
 
@@ -27,22 +27,20 @@ import argparse
 import dataclasses
 import json
 import math
-import os
 import platform
 import resource
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from graspgen.sim.warp_backend import WARP_PROTOCOLS, WarpParams, import_warp
+from graspgen.workflows.evaluate_settings import CHEAP_COACD, EvaluateParams
+from graspgen.workflows.evaluation_world import evaluation_world
+from graspgen.workflows.grasp_files import read_grasp_file
+from studies.calibration import add_calibration_option
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from graspgen.evaluate import CHEAP_COACD, EvaluateParams, evaluation_world, read_grasp_file  # noqa: E402
-from graspgen.sim.warp_backend import WARP_PROTOCOLS, WarpParams, import_warp  # noqa: E402
-
-CALIBRATION = Path(os.environ.get("GRASPGEN_CALIBRATION", "/work/shared/calibration"))
 RESULTS = ROOT / "bench" / "results_warp.json"
 
 
@@ -122,7 +120,7 @@ def agreement(cpu: list, warp1: list, warp2: list) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default=None, help="Warp device (default: cuda:0 if present, else cpu)")
-    ap.add_argument("--calibration", type=Path, default=CALIBRATION / "acronym_more")
+    add_calibration_option(ap, "acronym_more")
     ap.add_argument("--objects", type=int, default=5, help="ACRONYM files (sorted) used for the agreement")
     ap.add_argument("--grasps", type=int, default=100, help="evenly spaced grasps per file")
     ap.add_argument("--protocols", default=",".join(WARP_PROTOCOLS))

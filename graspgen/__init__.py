@@ -4,13 +4,15 @@ The grasp library, usable without the pipeline. Its public entry points:
 
 * :func:`open_dataset` -- lazy reader of a published dataset (``OUT/dataset``): grasps, scene views, point clouds.
 * :func:`evaluate_grasps` -- label grasps given as TCP poses on one mesh with the MuJoCo grasp-and-lift protocol.
-* :func:`load_gripper` -- a gripper model (:class:`~graspgen.sim.grippers.GripperSpec`) by name.
+* :func:`load_gripper` -- a gripper model (:class:`~graspgen.grippers.GripperSpec`) by name.
 
 They are imported on first use, so ``from graspgen import open_dataset`` needs numpy, pyarrow and h5py only (no
-MuJoCo, no trimesh). The building blocks live in the sub-packages: :mod:`graspgen.geometry` (meshes, convex
-decomposition, stable poses, antipodal sampling, ray contacts), :mod:`graspgen.sim` (grippers, scene model,
-grasp-and-lift protocol, collision pre-filter), :mod:`graspgen.quality` (wrench maths, epsilon, robustness),
-:mod:`graspgen.io` (records, Arrow helpers, ACRONYM, the reader) and :mod:`graspgen.viz` (pictures).
+MuJoCo, no trimesh). The building blocks live in the sub-packages: :mod:`graspgen.grippers` (gripper specs and
+files), :mod:`graspgen.geometry` (meshes, convex decomposition, stable poses, antipodal sampling, ray contacts),
+:mod:`graspgen.sim` (the gripper's MuJoCo model, scene model, grasp-and-lift protocol, collision pre-filter),
+:mod:`graspgen.quality` (wrench maths, epsilon, robustness), :mod:`graspgen.io` (records, Arrow helpers, ACRONYM,
+the reader), :mod:`graspgen.workflows` (the table builders the stages call, and ``evaluate_grasps``) and
+:mod:`graspgen.viz` (pictures).
 ARCHITECTURE.md in the repository shows how they fit together.
 """
 
@@ -25,8 +27,8 @@ __all__ = ["evaluate_grasps", "load_gripper", "open_dataset"]
 
 _PUBLIC = {
     "open_dataset": ("graspgen.io.reader", "open_dataset"),
-    "evaluate_grasps": ("graspgen.evaluate", "evaluate_grasps"),
-    "load_gripper": ("graspgen.sim.grippers", "load_gripper"),
+    "evaluate_grasps": ("graspgen.workflows.evaluate", "evaluate_grasps"),
+    "load_gripper": ("graspgen.grippers", "load_gripper"),
 }
 
 

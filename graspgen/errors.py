@@ -17,6 +17,15 @@ class SettingsError(GraspGenError, ValueError):
     a name, lists the valid choices: ``gripper: unknown 'x'; choose one of: box_jaw, panda, robotiq_2f85``."""
 
 
+class NotFoundError(GraspGenError, KeyError):
+    """A name asked for is not there: a column, a scene, a grasp id, a body or joint of a model. Also a
+    ``KeyError``, so ``except KeyError`` and ``dict``-like lookups keep working; the message lists what is there:
+    ``no scene 'x' in out/dataset/scenes; scenes: scene_000000, scene_000001``."""
+
+    def __str__(self) -> str:  # KeyError's own str() wraps the message in quotes
+        return str(self.args[0]) if self.args else ""
+
+
 class InputError(GraspGenError):
     """An input file (a mesh, a grasp file, a dataset) cannot be used. The message names the file and why."""
 

@@ -15,10 +15,11 @@ import typer  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.text import Text  # noqa: E402
 
+from graspgen_cli.evaluate import evaluate  # noqa: E402
 from graspgen_cli.probe import probe_app  # noqa: E402
 from pipeline.cli import ConfigOpt, SetOpt, build_app, check_writable, fail, load, os_error_text  # noqa: E402
 from pipeline.errors import StageError  # noqa: E402
-from pipeline.scheduler import Project, committed, plan, upstream_view  # noqa: E402
+from pipeline.plan import Project, committed, plan, upstream_view  # noqa: E402
 from pipeline.stage import topological_order  # noqa: E402
 from pipeline.store import Manifest, stage_dir  # noqa: E402
 from stages.project import PROJECT, USER_ERRORS  # noqa: E402
@@ -263,11 +264,6 @@ def show_rollout(
     same object, protocol and world; --config as for gen evaluate), e.g. an ACRONYM grasp under the acronym protocol
     (placed open, close, shake).
     """
-    import pyarrow.parquet as pq
-
-    from graspgen.io.objects import read_object
-    from graspgen.viz.rollout_movie import rollout_movie, save_movie
-
     console = Console(stderr=True)
     if grasps is not None:
         if scene_id is not None or grasp_id is not None:
@@ -279,6 +275,17 @@ def show_rollout(
         return
     if scene_id is None or grasp_id is None:
         fail(console, "scene_id, grasp_id: missing; give SCENE_ID GRASP_ID (or --grasps FILE --index I)")
+    _show_scene_rollout(console, scene_id, grasp_id, output, frames, config, out, set_)
+
+
+def _show_scene_rollout(console: Console, scene_id: str, grasp_id: int, output: Path | None, frames: int,
+                        config: Path | None, out: Path | None, set_: list[str] | None) -> None:
+    """``gen show rollout SCENE_ID GRASP_ID``: the grasp re-run in its scene, filmed, with its stored outcome."""
+    import pyarrow.parquet as pq
+
+    from graspgen.io.objects import read_object
+    from graspgen.viz.rollout_movie import rollout_movie, save_movie
+
     try:
         cfg = load(PROJECT, config, set_, out=out)
         if output is not None and output.suffix.lower() not in (".png", ".gif"):
@@ -320,9 +327,11 @@ def _show_external_rollout(console: Console, grasps: Path, index: int, output: P
     """``gen show rollout --grasps FILE --index I``: grasp I of FILE in gen evaluate's world, filmed."""
     import dataclasses
 
-    from graspgen.evaluate import CHEAP_COACD, EvaluateParams, evaluation_world, read_grasp_file
     from graspgen.viz.evaluate_movie import evaluated_rollout_movie
     from graspgen.viz.rollout_movie import save_movie
+    from graspgen.workflows.evaluate_settings import CHEAP_COACD, EvaluateParams
+    from graspgen.workflows.evaluation_world import evaluation_world
+    from graspgen.workflows.grasp_files import read_grasp_file
 
     try:
         cfg = load(PROJECT, config, set_, out=out)
@@ -372,7 +381,8 @@ def show_gripper(
     out: Annotated[Path | None, typer.Option("--out", help="Output folder of the run (overrides run.out).")] = None,
 ) -> None:
     """Draw a gripper open and closed with its TCP frame (PNG); print the PNG's path."""
-    from graspgen.sim.grippers import gripper_picture, load_gripper
+    from graspgen.grippers import load_gripper
+    from graspgen.viz.gripper_picture import gripper_picture
 
     console = Console(stderr=True)
     try:
@@ -387,139 +397,7 @@ def show_gripper(
     save_image(console, output, picture.save)
 
 
-@app.command("evaluate")
-def evaluate(
-    grasps: Annotated[
-        Path, typer.Option("--grasps", help="ACRONYM grasp file (.h5, .hdf5) or Parquet of TCP poses (.parquet).")
-    ],
-    gripper: Annotated[str, typer.Option(
-        "--gripper", help="Gripper to evaluate with: box_jaw, panda, robotiq_2f85, robotiq_2f85_mesh, or a file.")],
-    output: Annotated[Path, typer.Option("--out", "-o", help="Output Parquet file, one row per input grasp.")],
-    mesh_root: Annotated[
-        Path | None, typer.Option("--mesh-root", help="Folder ACRONYM's object/file is relative to (default: cwd).")
-    ] = None,
-    mesh: Annotated[
-        Path | None, typer.Option("--mesh", help="Mesh file: needed with Parquet input; replaces object/file.")
-    ] = None,
-    scale: Annotated[
-        float | None, typer.Option("--scale", help="Metres per mesh unit (default: object/scale; Parquet: detect).")
-    ] = None,
-    friction: Annotated[
-        float | None, typer.Option("--friction", help="Object friction (default: object/friction, else 0.5).")
-    ] = None,
-    support: Annotated[
-        bool, typer.Option("--support", help="Object on a table in its most probable stable pose (table protocol).")
-    ] = False,
-    protocol: Annotated[
-        str | None,
-        typer.Option(
-            "--protocol",
-            help="acronym (ACRONYM's free-space close-and-shake), graspgen (GraspDataGen's free-space tug test: "
-            "gravity off, close, pull with the object's weight along +z and four tilted directions) or table "
-            "(approach, close, lift); default: acronym for ACRONYM files (table with --support), table for Parquet.",
-        ),
-    ] = None,
-    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Worker processes (0 = all cores).")] = 1,
-    robustness: Annotated[
-        int,
-        typer.Option(
-            "--robustness",
-            help="Also roll out N perturbed copies of every successful grasp (the robustness stage's noise, config "
-            "section robustness) and add robustness columns (robustness, its Wilson interval, grip_robustness, "
-            "copy_outcomes); 0: none.",
-            min=0,
-        ),
-    ] = 0,
-    backend: Annotated[
-        str,
-        typer.Option("--backend", help="mujoco (the CPU, --jobs workers) or warp (MuJoCo Warp: many grasps at once "
-                     "on a GPU, or Warp's CPU device; acronym and graspgen protocols; needs the warp extra)."),
-    ] = "mujoco",
-    device: Annotated[
-        str | None, typer.Option("--device", help="With --backend warp: Warp device (cpu, cuda:0; default: Warp's).")
-    ] = None,
-    worlds: Annotated[
-        int, typer.Option("--worlds", help="With --backend warp: grasps rolled out at once (parallel worlds).", min=1)
-    ] = 1024,
-    config: ConfigOpt = None,
-    set_: SetOpt = None,
-) -> None:
-    """Label external grasps of one object with our simulator (outcome 0-5 per grasp, in input order).
-
-    Protocols (README, Protocols): acronym (ACRONYM files' default) places the open hand at the grasp, closes and
-    shakes in free space; table approaches, closes, lifts and shakes, in free space (gravity off until the fingers have
-    closed) or, with --support, on a table.
-
-    ACRONYM: hand-base poses + the file gripper's TCP offset; object/scale, mass (or density), friction are used.
-
-    --config: the protocol is its rollouts.lift, CoACD its objects.coacd (else cheap), cache in run.cache_dir.
-
-    --robustness N: N perturbed copies of each success, as the robustness stage perturbs them (its config section:
-    TCP pose, object mass, centre of mass and friction; radius not computed); the draws are seeded from the poses and
-    settings.
-    """
-    import dataclasses
-    import json
-
-    import numpy as np
-    import pyarrow as pa
-
-    from graspgen.evaluate import (
-        CHEAP_COACD,
-        METADATA_KEY,
-        EvaluateParams,
-        evaluate_grasps,
-        outcome_counts,
-        read_grasp_file,
-    )
-    from graspgen.io.files import write_parquet
-    from graspgen.sim.grippers import load_gripper
-    from graspgen.sim.warp_backend import WarpParams
-
-    console = Console(stderr=True)
-    try:
-        cfg = load(PROJECT, config, set_)
-        load_gripper(gripper)  # ConfigError listing the grippers, before any work
-        check_writable(output, "output file (-o)", file=True)  # a folder, a read-only place: before simulating
-        params = EvaluateParams(lift=cfg.rollouts.lift, coacd=cfg.objects.coacd if config else CHEAP_COACD)
-        loaded = read_grasp_file(grasps, params, mesh_root=mesh_root, mesh=mesh, scale=scale, friction=friction)
-        if protocol is None:
-            protocol = "acronym" if loaded.kind == "acronym" and not support else "table"
-        params = dataclasses.replace(loaded.params, lift=loaded.params.lift.with_protocol(protocol))
-        reference = loaded.reference
-        noise = dataclasses.replace(cfg.robustness, num_perturbations=robustness) if robustness else None
-        table = evaluate_grasps(
-            loaded.mesh_path, loaded.scale, loaded.T_tcp, loaded.widths, gripper, params, free_space=not support,
-            jobs=jobs, cache_dir=cfg.run.cache_dir, robustness=noise, backend=backend,
-            warp=WarpParams(device=device, nworld=worlds) if backend == "warp" else None,
-        )
-    except (*USER_ERRORS, ValueError) as exc:
-        fail(console, str(exc))
-    if reference is not None:  # keep the file's own label next to ours, for comparison
-        table = table.append_column("reference_success", pa.array(np.asarray(reference, dtype=np.int8)))
-    try:
-        output.parent.mkdir(parents=True, exist_ok=True)
-        write_parquet(output, table)
-    except OSError as exc:
-        fail(console, f"{output}: cannot write the labels ({os_error_text(exc)})", code=1)
-    for warning in json.loads(table.schema.metadata[METADATA_KEY.encode()])["warnings"]:
-        console.print(f"warning: {warning}", highlight=False, markup=False)
-    counts = ", ".join(f"{name} {n}" for name, n in outcome_counts(table).items() if n)
-    mode = "support plane" if support else f"{protocol or 'table'} protocol, free space"
-    mode += f", {backend} backend" if backend != "mujoco" else ""
-    console.print(f"{len(table)} grasps ({mode}): {counts}", highlight=False)
-    held, firm = int(np.sum(table.column("outcome").to_numpy() == 5)), int(np.sum(table.column("firm").to_numpy()))
-    console.print(f"labels: held {held}, firm {firm} (held and within the firm-hold tolerances)", highlight=False)
-    if reference is not None:
-        agree = int(np.sum((table.column("outcome").to_numpy() == 5) == (np.asarray(reference) == 1)))
-        console.print(f"agreement with the file's success label: {agree}/{len(table)}", highlight=False)
-    if robustness:
-        n_copies = table.column("robustness_n").to_numpy()
-        held = n_copies > 0
-        mean = float(np.mean(table.column("robustness").to_numpy()[held])) if held.any() else float("nan")
-        console.print(f"robustness: {int(n_copies.sum())} copies of {int(held.sum())} successes; mean robustness "
-                      f"{mean:.3f}", highlight=False)
-    print(output)
+app.command("evaluate")(evaluate)
 
 
 @app.command("report")
@@ -527,7 +405,7 @@ def report_cmd(
     out: Annotated[Path, typer.Argument(help="The run folder (or its dataset/ folder) of a published dataset.")],
 ) -> None:
     """Render the dataset card (card.md, card.json) and its plots again from a published dataset."""
-    from graspgen.io.card import report
+    from stages.dataset import report
 
     console = Console(stderr=True)
     try:

@@ -15,7 +15,7 @@ import tempfile
 import traceback
 import warnings
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, NoReturn
 
 import typer
 from rich.console import Console
@@ -24,9 +24,12 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
+from pipeline.backends import BACKENDS
 from pipeline.config import load_config, to_yaml
 from pipeline.errors import ConfigError, GenError
-from pipeline.scheduler import BACKENDS, Project, StageReport, run_pipeline, status
+from pipeline.plan import Project
+from pipeline.scheduler import StageReport, run_pipeline
+from pipeline.status import status
 from pipeline.store import SHARDS, RunLock, run_config_path, stage_dir
 
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config file (defaults when omitted).")]
@@ -56,7 +59,7 @@ def load(project: Project, config: Path | None, sets: list[str] | None, **run_ov
     return load_config(project.schema, config, overrides)
 
 
-def fail(console: Console, message: str, code: int = 2, word: str = "error:") -> None:
+def fail(console: Console, message: str, code: int = 2, word: str = "error:") -> NoReturn:
     """Print ``word message`` in one line and exit with ``code``. The message is printed literally: square
     brackets in it (``[min, max]``, a path) are text, not markup; only ``word`` is coloured."""
     console.print(Text.assemble((word, "bold red"), " ", str(message)), highlight=False, soft_wrap=True)
@@ -222,10 +225,17 @@ def summary_table(reports: list[StageReport]) -> Table:
 
 def build_app(project: Project) -> typer.Typer:
     """A Typer app with the generic commands for ``project``."""
-    user_errors = (GenError, *project.user_errors)
     app = typer.Typer(help=f"{project.name}: run the pipeline, see where it stands.", no_args_is_help=True)
     config_app = typer.Typer(help="Inspect the configuration.", no_args_is_help=True)
     app.add_typer(config_app, name="config")
+    _add_run(app, project)
+    _add_status(app, project)
+    _add_config_show(config_app, project)
+    _add_clean(app, project)
+    return app
+
+
+def _add_run(app: typer.Typer, project: Project) -> None:
     stage_names = ", ".join(s.name for s in project.stages)
 
     @app.command()
@@ -243,44 +253,58 @@ def build_app(project: Project) -> typer.Typer:
 
         Each run writes what it shows, its warnings and errors to OUT/logs/run-<UTC time>.log."""
         console = _LoggedConsole(stderr=True)
-        try:
-            cfg = load(project, config, set_, out=out, jobs=jobs, backend=backend)
-            check_writable(Path(cfg.run.out))  # before any work: a file, a read-only folder
-            console.open_log(Path(cfg.run.out), ctx.params)
-            ctx.call_on_close(console.close_log)
-            display = _ProgressDisplay(console)
-            with display.progress, warnings.catch_warnings():
-                warnings.filterwarnings("ignore", ".*by the workers have been cancelled", UserWarning)  # Ctrl-C
-                reports = run_pipeline(
-                    project, cfg, [stage] if stage else None, retry_failed=retry_failed, progress=display
-                )
-        except user_errors as exc:
-            fail(console, str(exc))
-        except KeyboardInterrupt:
-            fail(console, "finished tasks are kept; run the same command again to resume", 130, "interrupted:")
-        except OSError as exc:
-            fail(console, os_error_text(exc), code=1)
-        except Exception as exc:
-            if console.log_path is None:
-                raise
-            fail(console, console.bug(exc), code=1)  # one line here, the traceback in the log
-        console.print(summary_table(reports))
-        repaired = print_repaired(console, reports)
-        failures = [(r.stage, t, e) for r in reports for t, e in r.failures]
-        if failures:
-            console.print(f"[bold red]{len(failures)} task(s) failed:[/]")
-            for stage_name, task, error in failures:
-                console.print(f"  {stage_name}/{task}: {error.splitlines()[0]}", highlight=False, soft_wrap=True,
-                              markup=False)
-        print_warnings(console, reports)
-        if failures:
-            console.print("Fix the inputs and run again, or use --retry-failed to retry them as they are.")
-            raise typer.Exit(1)
-        if all(r.ran == 0 for r in reports):
-            done = f"all {sum(r.skipped for r in reports)} task(s) already done (skipped)"
-            console.print(f"No task to run: {done}; only published files were repaired." if repaired
-                          else f"Nothing to do: {done}.", soft_wrap=True, markup=False)
+        reports = _run_stages(project, console, ctx, stage, config, set_, retry_failed,
+                              out=out, jobs=jobs, backend=backend)
+        _report_run(console, reports)
 
+
+def _run_stages(project: Project, console: _LoggedConsole, ctx: typer.Context, stage: str | None,
+                config: Path | None, sets: list[str] | None, retry_failed: bool, **run_options: Any
+                ) -> list[StageReport]:
+    """``gen run``'s work: load the config, open the run's log, run the stages with a progress display. Errors are
+    one line (the traceback of a bug goes to the log) and exit: 2 for a user error, 130 on Ctrl-C, else 1."""
+    try:
+        cfg = load(project, config, sets, **run_options)
+        check_writable(Path(cfg.run.out))  # before any work: a file, a read-only folder
+        console.open_log(Path(cfg.run.out), ctx.params)
+        ctx.call_on_close(console.close_log)
+        display = _ProgressDisplay(console)
+        with display.progress, warnings.catch_warnings():
+            warnings.filterwarnings("ignore", ".*by the workers have been cancelled", UserWarning)  # Ctrl-C
+            return run_pipeline(project, cfg, [stage] if stage else None, retry_failed=retry_failed, progress=display)
+    except (GenError, *project.user_errors) as exc:
+        fail(console, str(exc))
+    except KeyboardInterrupt:
+        fail(console, "finished tasks are kept; run the same command again to resume", 130, "interrupted:")
+    except OSError as exc:
+        fail(console, os_error_text(exc), code=1)
+    except Exception as exc:
+        if console.log_path is None:
+            raise
+        fail(console, console.bug(exc), code=1)  # one line here, the traceback in the log
+
+
+def _report_run(console: Console, reports: list[StageReport]) -> None:
+    """The end of ``gen run``: the summary table, repairs, failed tasks (exit 1 when any), warnings."""
+    console.print(summary_table(reports))
+    repaired = print_repaired(console, reports)
+    failures = [(r.stage, t, e) for r in reports for t, e in r.failures]
+    if failures:
+        console.print(f"[bold red]{len(failures)} task(s) failed:[/]")
+        for stage_name, task, error in failures:
+            console.print(f"  {stage_name}/{task}: {error.splitlines()[0]}", highlight=False, soft_wrap=True,
+                          markup=False)
+    print_warnings(console, reports)
+    if failures:
+        console.print("Fix the inputs and run again, or use --retry-failed to retry them as they are.")
+        raise typer.Exit(1)
+    if all(r.ran == 0 for r in reports):
+        done = f"all {sum(r.skipped for r in reports)} task(s) already done (skipped)"
+        console.print(f"No task to run: {done}; only published files were repaired." if repaired
+                      else f"Nothing to do: {done}.", soft_wrap=True, markup=False)
+
+
+def _add_status(app: typer.Typer, project: Project) -> None:
     @app.command("status")
     def status_cmd(
         stage: Annotated[str | None, typer.Argument(help="Limit to this stage and what it needs.")] = None,
@@ -294,7 +318,7 @@ def build_app(project: Project) -> typer.Typer:
         try:
             cfg = load(project, config, set_, out=out)
             rows = status(project, cfg, [stage] if stage else None)
-        except user_errors as exc:
+        except (GenError, *project.user_errors) as exc:
             fail(console, str(exc))
         table = Table(title=f"status of {cfg.run.out}", title_justify="left")
         for col in ("stage", "state", "done", "missing", "failed", "why"):
@@ -304,6 +328,8 @@ def build_app(project: Project) -> typer.Typer:
             table.add_row(s.stage, s.state, total, str(s.missing), str(s.failed), Text("; ".join(s.reasons)))
         console.print(table)
 
+
+def _add_config_show(config_app: typer.Typer, project: Project) -> None:
     @config_app.command("show")
     def config_show(
         config: ConfigOpt = None,
@@ -314,10 +340,12 @@ def build_app(project: Project) -> typer.Typer:
         """Print the resolved config (file + overrides + defaults, or the one OUT remembers) as YAML."""
         try:
             cfg = load(project, config, set_, out=out)
-        except user_errors as exc:
+        except (GenError, *project.user_errors) as exc:
             fail(Console(stderr=True), str(exc))
         sys.stdout.write(to_yaml(cfg, comments=comments))
 
+
+def _add_clean(app: typer.Typer, project: Project) -> None:
     @app.command()
     def clean(
         stage: Annotated[str | None, typer.Argument(help="Only this stage's outputs.")] = None,
@@ -330,29 +358,32 @@ def build_app(project: Project) -> typer.Typer:
         try:
             cfg = load(project, config, set_, out=out)
             names = [project.stage(stage).name] if stage else [s.name for s in project.stages]
-        except user_errors as exc:
+        except (GenError, *project.user_errors) as exc:
             fail(console, str(exc))
-        root = Path(cfg.run.out)
-        if not root.exists():
-            return
-        try:
-            lock = RunLock(root).__enter__()
-        except user_errors as exc:
-            fail(console, str(exc))
-        paths = []
-        for name in names:
-            paths += [stage_dir(root, name), *(root / rel for rel in project.stage(name).published)]
-        if not stage:  # everything: the remembered config and the run logs go too
-            paths += [root / SHARDS, root / LOGS]
-        for path in paths:
-            if path.is_dir():
-                shutil.rmtree(path)
-                console.print(f"removed {path}", markup=False, highlight=False)
-            elif path.exists():
-                path.unlink()
-                console.print(f"removed {path}", markup=False, highlight=False)
-        lock.__exit__()
-        if not stage and not any(p for p in root.iterdir() if p.name != ".lock"):
-            shutil.rmtree(root)
+        _clean(project, console, Path(cfg.run.out), names, everything=not stage)
 
-    return app
+
+def _clean(project: Project, console: Console, root: Path, names: list[str], *, everything: bool) -> None:
+    """Remove the shards and published files of the stages ``names`` under ``root``, under the run lock; with
+    ``everything`` also the remembered config and the logs, and ``root`` itself when nothing else is left in it."""
+    if not root.exists():
+        return
+    try:
+        lock = RunLock(root).__enter__()
+    except (GenError, *project.user_errors) as exc:
+        fail(console, str(exc))
+    paths = []
+    for name in names:
+        paths += [stage_dir(root, name), *(root / rel for rel in project.stage(name).published)]
+    if everything:  # the remembered config and the run logs go too
+        paths += [root / SHARDS, root / LOGS]
+    for path in paths:
+        if path.is_dir():
+            shutil.rmtree(path)
+            console.print(f"removed {path}", markup=False, highlight=False)
+        elif path.exists():
+            path.unlink()
+            console.print(f"removed {path}", markup=False, highlight=False)
+    lock.__exit__()
+    if everything and not any(p for p in root.iterdir() if p.name != ".lock"):
+        shutil.rmtree(root)

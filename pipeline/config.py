@@ -25,6 +25,7 @@ import yaml
 from pipeline.errors import ConfigError
 
 __all__ = [
+    "FLATTEN",
     "RunConfig",
     "field_docs",
     "load_config",
@@ -32,6 +33,23 @@ __all__ = [
     "to_dict",
     "to_yaml",
 ]
+
+
+FLATTEN = "config_flatten"
+"""Field metadata flag of a field that holds a settings dataclass written at its section's own level: its keys
+sit beside the section's other keys in the file, in ``to_dict``, in ``to_yaml`` and in the content keys
+(``dataclasses.field(default_factory=Inner, metadata={FLATTEN: True})``), so a section can embed another settings
+class without repeating its fields and without changing the keys users write. Its own field docstrings are the
+comments ``to_yaml`` writes for them."""
+
+
+def _flattened(cls: type, hints: dict[str, Any]) -> dict[str, set[str]]:
+    """The :data:`FLATTEN` fields of ``cls`` and the keys each takes from the section's own level."""
+    return {
+        f.name: {g.name for g in dataclasses.fields(hints[f.name])}
+        for f in dataclasses.fields(cls)
+        if f.metadata.get(FLATTEN)
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,14 +162,18 @@ def _build(cls: type, raw: Any, prefix: str) -> Any:
     if not isinstance(raw, dict):
         raise ConfigError(f"{prefix.rstrip('.') or '(top level)'}: must be a mapping, got {raw!r}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(raw) - set(fields))
+    hints = typing.get_type_hints(cls)
+    flat = _flattened(cls, hints)
+    valid = (set(fields) - set(flat)).union(*flat.values())
+    unknown = sorted(set(raw) - valid)
     if unknown:
         key = unknown[0]
-        raise ConfigError(f"{prefix}{key}: unknown key; valid keys: {', '.join(sorted(fields))}")
-    hints = typing.get_type_hints(cls)
+        raise ConfigError(f"{prefix}{key}: unknown key; valid keys: {', '.join(sorted(valid))}")
     kwargs = {}
     for name in fields:
-        if name in raw:
+        if name in flat:
+            kwargs[name] = _build(hints[name], {k: v for k, v in raw.items() if k in flat[name]}, prefix)
+        elif name in raw:
             kwargs[name] = _convert(hints[name], raw[name], f"{prefix}{name}")
         elif dataclasses.is_dataclass(hints[name]):
             kwargs[name] = _build(hints[name], {}, f"{prefix}{name}.")
@@ -244,7 +266,14 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
 def to_dict(obj: Any) -> Any:
     """Plain-Python (JSON/YAML-able) form of a config tree: dataclasses -> dicts, tuples -> lists."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(obj):
+            value = to_dict(getattr(obj, f.name))
+            if f.metadata.get(FLATTEN):
+                out.update(value)
+            else:
+                out[f.name] = value
+        return out
     if isinstance(obj, (tuple, list)):
         return [to_dict(v) for v in obj]
     if isinstance(obj, (dict, types.MappingProxyType)):
@@ -289,6 +318,9 @@ def _emit_yaml(obj: Any, out: io.StringIO, indent: int, comments: bool) -> None:
     pad = "  " * indent
     for f in dataclasses.fields(obj):
         value = getattr(obj, f.name)
+        if f.metadata.get(FLATTEN):
+            _emit_yaml(value, out, indent, comments)
+            continue
         if f.name in docs:
             out.write(f"{pad}# {docs[f.name]}\n")
         if dataclasses.is_dataclass(value):

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.config import to_dict
+from pipeline.config import FLATTEN, to_dict
 
 KEY_SCHEME = 2
 """Bump when the key recipe itself changes: every output becomes stale. 2: keys cover code and packages."""
@@ -43,7 +43,16 @@ def _jsonable(obj: Any) -> Any:
     if type(obj) in _PLAIN:
         return obj
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: _jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj) if not _omitted(obj, f)}
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(obj):
+            if _omitted(obj, f):
+                continue
+            value = _jsonable(getattr(obj, f.name))
+            if f.metadata.get(FLATTEN):  # its keys at the section's level, as the config file writes them
+                out.update(value)
+            else:
+                out[f.name] = value
+        return out
     # Containers are walked here, not first converted whole by to_dict: a key's upstream part can hold thousands
     # of keys, and converting it at every level made hashing it quadratic in its depth times its size.
     if isinstance(obj, (dict, types.MappingProxyType)):

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 
-from graspgen.quality.epsilon import MetricsParams
-from graspgen.quality.robustness import RobustnessParams
-from graspgen.sim.grippers import load_gripper
-from graspgen.sim.object_grasps import ObjectGraspsParams
-from graspgen.sim.placed_grasps import PlacedGraspsParams
-from graspgen.sim.rollouts import RolloutsParams
-from graspgen.sim.scene_grasps import GraspsParams
-from graspgen.sim.scenes import ScenesParams
+from graspgen.grippers import load_gripper
+from graspgen.quality.contact_noise import MetricsParams
+from graspgen.quality.perturbation import RobustnessParams
 from graspgen.validation import check
+from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
+from graspgen.workflows.placed_grasps import PlacedGraspsParams
+from graspgen.workflows.rollouts import RolloutsParams
+from graspgen.workflows.scene_grasps import GraspsParams
+from graspgen.workflows.scene_params import ScenesParams
 from pipeline.config import RunConfig
 from stages.dataset import DatasetParams
 from stages.objects import ObjectsParams

@@ -32,112 +32,70 @@ shards as hard links, copies where links are not possible)::
 
 and nothing else: the engine's shards and manifest of this stage are in ``OUT/shards/dataset/``, so copying or archiving
 ``OUT/dataset`` hands over exactly the published files. The card is :mod:`graspgen.io.card`
-(:func:`graspgen.io.card.report` renders it and the plots of :mod:`graspgen.viz.plots` again from a published folder:
-``gen report``); :func:`validate` checks a folder against the manifests, the card's hashes and the schema (``gen
-validate``). Read a dataset with
-:func:`graspgen.io.reader.open_dataset`.
+(statistics :mod:`graspgen.io.card_stats`, text :mod:`graspgen.io.card_render`) with the plots of
+:mod:`graspgen.viz.plots`, drawn here (:func:`make_card`); :func:`report` renders both again from a published folder
+(``gen report``); :func:`validate` checks a folder against the manifests, the card's hashes and the schema (``gen
+validate``). Read a dataset with :func:`graspgen.io.reader.open_dataset`.
 
 The folder heals. Publish keeps a record of every file it laid out (size, mtime, inode, sha256; for a shard's link
 its shard) in ``OUT/shards/dataset/published.json`` and every run checks the folder against it, fast
-(:func:`check_published`: a link is intact when it is its verified shard's inode with its size, any other file
-when its size, mtime and inode are unchanged, else its sha256 decides): a damaged or missing link is made again
-(a damaged shard is remade by its stage first: the run checks shards by sha256), a stray file in the dataset's
-folders is removed, and a damaged or missing file of any other kind (plots, ACRONYM files, the card) lays the
-folder out again. ``gen status`` runs the same check (:meth:`DatasetStage.publish_status`) and names each file
-the run will replace. Only ``gen validate`` reads every byte. The card also lists the run's warnings (unit guesses
-and repairs of meshes, objects left out and why, objects the gripper cannot grasp), given to publish by the engine.
+(:func:`graspgen.io.publish_check.check_published`: a link is intact when it is its verified shard's inode with
+its size, any other file when its size, mtime and inode are unchanged, else its sha256 decides): a damaged or
+missing link is made again (a damaged shard is remade by its stage first: the run checks shards by sha256), a stray
+file in the dataset's folders is removed, and a damaged or missing file of any other kind (plots, ACRONYM files, the
+card) lays the folder out again. ``gen status`` runs the same check (:meth:`DatasetStage.publish_status`) and
+names each file the run will replace. Only ``gen validate`` reads every byte. The card also lists the run's
+warnings (unit guesses and repairs of meshes, objects left out and why, objects the gripper cannot grasp), given to
+publish by the engine.
 
-Columns of ``grasps.parquet`` (with the default table stages; every column's description,
-:data:`graspgen.io.dataset_table.COLUMN_DOCS`, is also stored in the Parquet field metadata under ``description``;
-poses are 4x4 row-major, TCP frame: z approach, x closing):
-
-=======================  ===============  ===========================================================================
-column                   type             meaning
-=======================  ===============  ===========================================================================
-scene_id                 string           the scene (``scenes/<scene_id>.h5``)
-grasp_id                 int32            grasp id within the scene
-object_name              string           target object (``objects/<object_name>.h5``)
-object_index             int16            target's index in the scene (its segmentation / point id)
-gripper                  string           gripper model
-pose_object              float64[16]      TCP pose in the object's mesh frame
-pose_world               float64[16]      TCP pose in the world (scene) frame
-width                    float64          pad separation at the sampled contacts, m
-open_width               float64          opening before the approach, m
-contact1, contact2       float64[3]       sampled contact points (left, right pad), object frame, m
-normal1, normal2         float64[3]       inward surface normals there, object frame
-approach_angle           float64          approach axis angle from straight down, rad
-prefilter_code           int8             -1 free, 0 ground/support, 1 target, 2 clutter (collision pre-filter)
-outcome                  int8             0 collision_with_ground, 1 collision_with_target, 2 collision_with_clutter,
-                                          3 no_contact_established, 4 slipped_during_lifting, 5 success
-outcome_name             string           its name
-simulated ... rel_rotation                rollout details (``stages.rollouts``): simulated, decided_in, steps,
-                                          sim_time s, closed_width m, lift_gain m, rel_translation m, rel_rotation rad
-contact_points/_normals  list<float64>    finger-object contacts at the end of closing, world frame, k*3 values
-contact_forces           list<float64>    their normal forces, N; contact_fingers list<int8>: 0 left, 1 right
-target_pose_closed       float64[16]      the target's pose when closing ended (maps the contacts to its frame)
-robustness_n             int32            perturbed copies rolled out (0 unless outcome is 5)
-robustness_successes     int32            copies that succeeded
-robustness               float64          success fraction of the copies; NaN when robustness_n = 0
-robustness_lo, _hi       float64          Wilson score 95% interval of it
-grip_robustness          float64          successes among the copies that reached the grip (codes 3-5); NaN if none
-grip_robustness_lo, _hi  float64          Wilson score 95% interval of it
-pfc                      float64          probability of force closure: copies with epsilon > delta
-copy_outcomes            list<int8>       outcome (failure cause) of each copy; copy_epsilon list<float64>: epsilon
-radius_x/_y/_z, _rx/...  float64          robustness radius along / about the TCP axes, m / rad (NaN when off)
-epsilon                  float64          Ferrari-Canny epsilon (unit-free); 0 when not in force closure
-contact_source           string           where epsilon's contacts came from: rollout, raycast or none
-epsilon_contacts         int32            contact points epsilon was computed from
-epsilon_friction         float64          Coulomb coefficient of epsilon's friction cones
-min_closure_friction     float64          smallest tested friction with force closure; NaN when none
-pfc_contact              float64          copies of the contacts under contact noise with epsilon > delta (fraction)
-epsilon_robust           float64          mean epsilon over those copies (Dex-Net-style robust epsilon)
-torque_scale             float64          epsilon's torque scale (object radius about its centre of mass), m
-source_key               string           the key of the scene's rollouts shard (its provenance)
-=======================  ===============  ===========================================================================
+The columns of ``grasps.parquet`` (their types and meanings) are listed in :mod:`graspgen.io.dataset_table`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 
-from graspgen.io.acronym import export_acronym, export_object_acronym
-from graspgen.io.card import (
-    CARD_VERSION,
-    MANAGED,
-    CardSettings,
-    add_file,
-    build_card,
-    package_versions,
-    render_card,
-)
+from graspgen.errors import InputError
+from graspgen.io.acronym_export import export_acronym, export_object_acronym
+from graspgen.io.card import CARD_VERSION, add_file, card_sources, package_versions, write_card
 from graspgen.io.card_grasps import scene_grasp_counts
+from graspgen.io.card_stats import CardSettings, card_stats
 from graspgen.io.dataset_table import (
     FORMAT,
     META_KEY,
     TABLES,
     GroupedParquetWriter,
-    check_table,
     dataset_dir,
     join_scene,
     write_grasps_parquet,
 )
 from graspgen.io.graspgen_format import export_graspgen
 from graspgen.io.probe_files import publish_probe
-from graspgen.validation import check
-from pipeline.config import to_dict, to_yaml
+from graspgen.io.publish_check import (
+    ShardFile,
+    ShardLookup,
+    check_folder,
+    check_published,
+    file_record,
+    link_file,
+    read_record,
+    same_file,
+)
+from graspgen.validation import check_bool, check_positive_int
+from graspgen.viz.plots import draw_plots
+from pipeline.config import FLATTEN, to_dict, to_yaml
 from pipeline.errors import StageError
 from pipeline.keys import canonical_json, sha256_file
 from pipeline.stage import RunContext, Task, Upstream
-from pipeline.store import MANIFEST, SHARDS, Entry, Manifest, atomic_path, stage_dir, write_text_atomic
+from pipeline.store import MANIFEST, SHARDS, Entry, Manifest, stage_dir, write_text_atomic
 from stages.base import GraspStage
 
 __all__ = [
@@ -146,6 +104,8 @@ __all__ = [
     "DatasetTaskParams",
     "config_yaml",
     "included_scenes",
+    "make_card",
+    "report",
     "validate",
 ]
 
@@ -165,6 +125,14 @@ PROBE_TASK = "probe"
 PROVENANCE_STAGE = "rollouts"
 """``source_key`` holds the key of this stage's shard of the scene (the last table stage when it is not joined)."""
 
+PUBLISH_RECORD = "published.json"
+"""The publish step's record of the files it laid out (:mod:`graspgen.io.publish_check`):
+``OUT/shards/dataset/published.json``, with the engine's files of the stage (it describes files on one disk, not
+the data, so it is not part of the dataset)."""
+
+CARD_FILES = ("card.json", "card.md")
+"""Published files that card.json does not list (itself and its rendering)."""
+
 
 # ---------------------------------------------------------------------------------------------------------------
 # Params
@@ -173,7 +141,7 @@ PROVENANCE_STAGE = "rollouts"
 
 @dataclasses.dataclass(frozen=True)
 class DatasetParams:
-    """Settings of the ``dataset`` stage (config section ``dataset``)."""
+    """Settings of the ``dataset`` stage (config section ``dataset``; the card's keys sit at its level)."""
 
     row_group_rows: int = 16384
     """Rows per Parquet row group, about: whole scenes are packed into a group until the next would pass this (a
@@ -185,20 +153,14 @@ class DatasetParams:
     graspgen: bool = True
     """Also export the object-centric sets in GraspGen's dataset layout (graspgen/: splits and one JSON per
     object; :mod:`graspgen.io.graspgen_format`)."""
-    plots: bool = True
-    """Draw the card's plots (plots/*.png, with matplotlib)."""
-    histogram_bins: int = 20
-    """Bins of the label histograms (card and plots) for labels with more than 32 distinct values."""
-    example_scenes: int = 4
-    """Scenes in the examples contact sheet (the first ones by id that have RGB images)."""
-    example_grasps: int = 24
-    """At most this many grasps drawn per example scene, spread over the outcomes."""
+    card: CardSettings = dataclasses.field(default_factory=CardSettings, metadata={FLATTEN: True})
+    """The card and its plots (:class:`graspgen.io.card_stats.CardSettings`: ``plots``, ``histogram_bins``,
+    ``example_scenes``, ``example_grasps``, written at this section's level)."""
 
     def __post_init__(self) -> None:
-        check("row_group_rows", self.row_group_rows > 0, "be > 0", self.row_group_rows)
-        check("histogram_bins", 1 <= self.histogram_bins <= 1000, "be in [1, 1000]", self.histogram_bins)
-        check("example_scenes", self.example_scenes >= 0, "be >= 0", self.example_scenes)
-        check("example_grasps", self.example_grasps >= 0, "be >= 0", self.example_grasps)
+        check_positive_int("row_group_rows", self.row_group_rows)
+        check_bool("acronym", self.acronym)
+        check_bool("graspgen", self.graspgen)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -216,16 +178,6 @@ class DatasetTaskParams:
     """Every section of the resolved config except ``run``, by name (dataclasses), in the schema's order."""
 
 
-def card_settings(params: DatasetParams) -> CardSettings:
-    """The fields of the ``dataset`` section that the card and its plots read."""
-    return CardSettings(
-        plots=params.plots,
-        histogram_bins=params.histogram_bins,
-        example_scenes=params.example_scenes,
-        example_grasps=params.example_grasps,
-    )
-
-
 def included_scenes(upstream: Upstream, tables: Sequence[str]) -> tuple[list[str], dict[str, str]]:
     """Scenes with a shard in every table stage (sorted), and the others with the reason they are left out."""
     have = {t: set(upstream.ids(t)) for t in tables}
@@ -238,6 +190,22 @@ def included_scenes(upstream: Upstream, tables: Sequence[str]) -> tuple[list[str
         else:
             keep.append(sid)
     return keep, left
+
+
+def _shard_lookup(shards: Upstream) -> ShardLookup:
+    """The verified shards of ``shards`` as :func:`graspgen.io.publish_check.check_published` looks them up."""
+
+    def lookup(stage: str, task_id: str) -> ShardFile | None:
+        if stage not in shards.stages() or task_id not in shards.ids(stage):
+            return None
+        entry = shards.entry(stage, task_id)
+        return ShardFile(path=shards.path(stage, task_id), sha256=entry.sha256, bytes=entry.bytes)
+
+    return lookup
+
+
+def _write_record(path: Path, record: Mapping[str, Any]) -> None:
+    write_text_atomic(path, json.dumps(record, indent=1, sort_keys=True) + "\n")
 
 
 class DatasetStage(GraspStage):
@@ -330,35 +298,34 @@ class DatasetStage(GraspStage):
     def publish(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> list[str]:
         """Lay out ``dest/dataset`` (module docstring), or repair it when it already shows this shard.
 
-        Every run checks the folder fast against the publish record (:func:`check_published`: a file linked to
-        its shard by inode and size, any other by size, mtime and inode): damaged or missing links are made
-        again, stray files in the dataset's folders removed, and a damaged file of any other kind (plots,
-        ACRONYM files, the card) makes the whole folder again. Returns what it repaired (nothing for a new
-        dataset or an intact folder).
+        Every run checks the folder fast against the publish record (:func:`graspgen.io.publish_check.
+        check_published`: a file linked to its shard by inode and size, any other by size, mtime and inode):
+        damaged or missing links are made again, stray files in the dataset's folders removed, and a damaged file
+        of any other kind (plots, ACRONYM files, the card) makes the whole folder again. Returns what it repaired
+        (nothing for a new dataset or an intact folder).
         """
         if "dataset" not in shards.ids(self.name):
             return []  # the task failed: leave the last good folder as it is
         entry = shards.entry(self.name, "dataset")
         root = Path(dest) / self.name
         record_path = stage_dir(dest, self.name) / PUBLISH_RECORD
-        check = check_published(root, _read_record(record_path), shards, entry.key)
+        check = check_published(root, read_record(record_path), _shard_lookup(shards), entry.key)
         if check.remake is None and not check.rebuild:
             if check.relink or check.stray or check.refresh:
                 record = check.record
                 for rel in check.relink:
                     stage, task_id = record["files"][rel]["source"]
-                    _link(shards.path(stage, task_id), root / rel)
-                    linked = _same_file(root / rel, shards.path(stage, task_id))
-                    record["files"][rel] = _file_record(root, rel, {**record["files"][rel], "linked": linked})
+                    link_file(shards.path(stage, task_id), root / rel)
+                    linked = same_file(root / rel, shards.path(stage, task_id))
+                    record["files"][rel] = file_record(root, rel, {**record["files"][rel], "linked": linked})
                 for rel in check.stray:
                     (root / rel).unlink(missing_ok=True)
                 for rel in check.refresh:
-                    record["files"][rel] = _file_record(root, rel, record["files"][rel])
-                write_text_atomic(record_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+                    record["files"][rel] = file_record(root, rel, record["files"][rel])
+                _write_record(record_path, record)
             return check.done_lines()
         record_path.unlink(missing_ok=True)  # a folder half made again has no record: the next run remakes it
-        record = self._lay_out(params, shards, root, entry)
-        write_text_atomic(record_path, json.dumps(record, indent=1, sort_keys=True) + "\n")
+        _write_record(record_path, self._lay_out(params, shards, root, entry))
         return check.done_lines()
 
     def publish_status(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> list[str]:
@@ -366,18 +333,43 @@ class DatasetStage(GraspStage):
         A shard missing from ``shards`` is one the run remakes: the published file linked to it is damaged."""
         key = shards.key(self.name, "dataset") if "dataset" in shards.ids(self.name) else None
         root = Path(dest) / self.name
-        check = check_published(root, _read_record(stage_dir(dest, self.name) / PUBLISH_RECORD), shards, key)
-        return check.status_lines()
+        record = read_record(stage_dir(dest, self.name) / PUBLISH_RECORD)
+        return check_published(root, record, _shard_lookup(shards), key).status_lines()
 
     def _lay_out(self, params: DatasetTaskParams, shards: Upstream, root: Path, entry: Entry) -> dict[str, Any]:
         """Publish the whole folder: links, config.yaml, ACRONYM files, card and plots; returns the publish record
         of the files laid out."""
         files: dict[str, dict[str, Any]] = {}
         sources: dict[str, tuple[str, str]] = {}
+        object_sets = self._link_shards(shards, root, files, sources)
+        write_text_atomic(root / "config.yaml", config_yaml(params.config))
+        add_file(files, root, "config.yaml")
+        if self.probe and PROBE_TASK in shards.ids(self.probe):
+            for rel in publish_probe(shards.path(self.probe, PROBE_TASK), root):
+                add_file(files, root, rel)
+        for rel in _exports(root, params.dataset, object_sets):
+            add_file(files, root, rel)
+        card = make_card(root, self._provenance(params, shards, entry), files, params.dataset.card)
+        record: dict[str, Any] = {"dataset_key": entry.key, "card_version": CARD_VERSION, "files": {}}
+        for rel, info in card["files"].items():
+            known = {"sha256": info["sha256"]}
+            if rel in sources:
+                stage, task_id = sources[rel]
+                known["source"] = [stage, task_id]
+                known["linked"] = same_file(root / rel, shards.path(stage, task_id))
+            record["files"][rel] = file_record(root, rel, known)
+        for rel in CARD_FILES:
+            record["files"][rel] = file_record(root, rel, {"sha256": sha256_file(root / rel)})
+        return record
+
+    def _link_shards(self, shards: Upstream, root: Path, files: dict[str, dict[str, Any]],
+                     sources: dict[str, tuple[str, str]]) -> list[str]:
+        """Link the published shards (the tables, the included scenes, the objects) into ``root``, listed in
+        ``files`` and ``sources``; returns the object-set stages published."""
 
         def shard(stage: str, task_id: str, rel: str) -> None:
             e = shards.entry(stage, task_id)
-            _link(shards.path(stage, task_id), root / rel)
+            link_file(shards.path(stage, task_id), root / rel)
             files[rel] = {"sha256": e.sha256, "bytes": e.bytes, "source": f"{stage}/{e.key}"}
             sources[rel] = (stage, task_id)
 
@@ -385,23 +377,15 @@ class DatasetStage(GraspStage):
         object_sets = [stage for stage in self.object_sets if stage in shards.ids(self.name)]
         for stage in object_sets:
             shard(self.name, stage, f"{stage}.parquet")
-        scenes, left_out = included_scenes(shards, self.tables)
+        scenes, _ = included_scenes(shards, self.tables)
         for sid in scenes:
             shard("scenes", sid, f"scenes/{sid}.h5")
         for name in shards.ids("objects"):
             shard("objects", name, f"objects/{name}.h5")
-        write_text_atomic(root / "config.yaml", config_yaml(params.config))
-        add_file(files, root, "config.yaml")
-        if self.probe and PROBE_TASK in shards.ids(self.probe):
-            for rel in publish_probe(shards.path(self.probe, PROBE_TASK), root):
-                add_file(files, root, rel)
-        if params.dataset.acronym:  # ACRONYM's meaning (a free-space label per object grasp) where there is one
-            export = export_object_acronym if "object_grasps" in object_sets else export_acronym
-            for rel in export(root):
-                add_file(files, root, rel)
-        if params.dataset.graspgen and "object_grasps" in object_sets:
-            for rel in export_graspgen(root):
-                add_file(files, root, rel)
+        return object_sets
+
+    def _provenance(self, params: DatasetTaskParams, shards: Upstream, entry: Entry) -> dict[str, Any]:
+        """What the card says of the run that made the data: keys, versions, warnings, config, sampling counts."""
         stages = {
             stage: {
                 "version": next(iter({shards.entry(stage, t).parts.get("stage", "") for t in shards.ids(stage)}), ""),
@@ -410,10 +394,10 @@ class DatasetStage(GraspStage):
             for stage in (*self.inputs, self.name)
         }
         warnings = [f"{stage}: {text}" for stage in (*self.inputs, self.name) for text in shards.warnings(stage)]
-        provenance = {
+        return {
             "dataset_key": entry.key,
             "tables": list(self.tables),
-            "left_out": left_out,
+            "left_out": included_scenes(shards, self.tables)[1],
             "warnings": warnings,
             "stages": stages,
             "versions": package_versions(),
@@ -421,18 +405,17 @@ class DatasetStage(GraspStage):
             "scene_grasps": scene_grasp_counts(shards.meta("grasps", t) for t in shards.ids("grasps"))
             if "grasps" in self.inputs else None,
         }
-        card = build_card(root, provenance, files, card_settings(params.dataset))  # also removes stray files
-        record: dict[str, Any] = {"dataset_key": entry.key, "card_version": CARD_VERSION, "files": {}}
-        for rel, info in card["files"].items():
-            known = {"sha256": info["sha256"]}
-            if rel in sources:
-                stage, task_id = sources[rel]
-                known["source"] = [stage, task_id]
-                known["linked"] = _same_file(root / rel, shards.path(stage, task_id))
-            record["files"][rel] = _file_record(root, rel, known)
-        for rel in CARD_FILES:
-            record["files"][rel] = _file_record(root, rel, {"sha256": sha256_file(root / rel)})
-        return record
+
+
+def _exports(root: Path, params: DatasetParams, object_sets: Sequence[str]) -> list[str]:
+    """Write the ACRONYM and GraspGen exports the params ask for; returns the files written (relative)."""
+    written: list[str] = []
+    if params.acronym:  # ACRONYM's meaning (a free-space label per object grasp) where there is one
+        export = export_object_acronym if "object_grasps" in object_sets else export_acronym
+        written += export(root)
+    if params.graspgen and "object_grasps" in object_sets:
+        written += export_graspgen(root)
+    return written
 
 
 def config_yaml(sections: Mapping[str, Any]) -> str:
@@ -449,206 +432,64 @@ def config_yaml(sections: Mapping[str, Any]) -> str:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Publishing helpers
+# The card, gen report, gen validate
 # ---------------------------------------------------------------------------------------------------------------
 
 
-def _link(src: Path, dst: Path) -> None:
-    """Make ``dst`` the same file as ``src``: a hard link (atomically replaced), else a copy."""
-    try:
-        if dst.exists() and os.path.samefile(src, dst):
-            return
-    except OSError:
-        pass
-    with atomic_path(dst) as tmp:
-        tmp.unlink()
-        try:
-            os.link(src, tmp)
-        except OSError:  # another file system, or links not allowed: copy
-            shutil.copyfile(src, tmp)
+def make_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, Any], settings: CardSettings) -> dict:
+    """The card of the dataset folder ``root``: its statistics, its plots (when ``settings.plots``) and
+    ``card.json`` / ``card.md`` (:mod:`graspgen.io.card`); returns what card.json holds.
 
-
-PUBLISH_RECORD = "published.json"
-"""The publish step's record of the files it laid out: ``OUT/shards/dataset/published.json``, with the engine's
-files of the stage (it describes files on one disk, not the data, so it is not part of the dataset). Per file
-(relative to ``OUT/dataset``): ``bytes``, ``mtime_ns``, ``ino``, ``dev``, ``sha256``, and for a shard's link its
-``source`` ``[stage, task id]`` and whether it is ``linked`` (a hard link) or a copy."""
-
-CARD_FILES = ("card.json", "card.md")
-"""Published files that card.json does not list (itself and its rendering)."""
-
-
-def _read_record(path: Path) -> dict[str, Any] | None:
-    try:
-        record = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
-    return record if isinstance(record, dict) and isinstance(record.get("files"), dict) else None
-
-
-def _file_record(root: Path, rel: str, known: Mapping[str, Any]) -> dict[str, Any]:
-    """``known`` (sha256, source, linked) with the file's size, mtime and inode as they are now."""
-    st = os.stat(root / rel)
-    return {**known, "bytes": st.st_size, "mtime_ns": st.st_mtime_ns, "ino": st.st_ino, "dev": st.st_dev}
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
-def _unchanged(st: os.stat_result, info: Mapping[str, Any]) -> bool:
-    """The file's size, mtime and inode are those the record holds (the fast check: no read)."""
-    return (st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev) == tuple(
-        info.get(k) for k in ("bytes", "mtime_ns", "ino", "dev")
-    )
-
-
-@dataclasses.dataclass
-class PublishCheck:
-    """What :func:`check_published` found in a published folder, and what :meth:`DatasetStage.publish` does."""
-
-    record: dict[str, Any] = dataclasses.field(default_factory=dict)
-    """The publish record read (updated by publish when it repairs)."""
-    remake: str | None = None
-    """The whole folder is laid out: :data:`FIRST` (no folder yet), :data:`OTHER` (it shows another dataset
-    shard) or why (no record of its files, another card version). None: it is repaired file by file."""
-    problems: list[tuple[str, str]] = dataclasses.field(default_factory=list)
-    """``(path, what)``: missing, damaged or not part of the dataset."""
-    relink: list[str] = dataclasses.field(default_factory=list)
-    """Shards' links to make again."""
-    stray: list[str] = dataclasses.field(default_factory=list)
-    """Files in the dataset's folders that the dataset does not list: removed."""
-    refresh: list[str] = dataclasses.field(default_factory=list)
-    """Files with another mtime or inode but their recorded sha256 (rewritten with the same bytes, e.g. by
-    ``gen report``): only their record is updated."""
-    rebuild: bool = False
-    """A file that is not a shard's link is damaged or missing: the whole folder is laid out again."""
-
-    def status_lines(self) -> list[str]:
-        """For ``gen status``: what a run will do."""
-        if self.remake == FIRST:
-            return ["not published yet (will be)"]
-        if self.remake == OTHER:
-            return ["the folder holds another dataset (will be made again)"]
-        if self.remake is not None:
-            return [f"the folder will be made again ({self.remake})"]
-        lines = [f"{rel} {what} (will be {'removed' if what == STRAY else 'replaced'})" for rel, what in self.problems]
-        return _at_most(lines, "file(s) more to repair")
-
-    def done_lines(self) -> list[str]:
-        """For the run's report: what publish did (a first or new dataset's publish is no repair: nothing)."""
-        if self.remake in (FIRST, OTHER):
-            return []
-        if self.remake is not None:
-            return [f"made the folder again ({self.remake})"]
-        lines = [f"{'removed' if what == STRAY else 'replaced'} {rel} ({what})" for rel, what in self.problems]
-        return _at_most(lines, "file(s) more repaired")
-
-
-STRAY = "not part of the dataset"
-PROBLEMS_LISTED = 8
-"""At most this many files are named in the lines of a :class:`PublishCheck`; the rest are counted."""
-
-
-def _at_most(lines: list[str], more: str) -> list[str]:
-    if len(lines) <= PROBLEMS_LISTED:
-        return lines
-    return lines[: PROBLEMS_LISTED - 1] + [f"{len(lines) - PROBLEMS_LISTED + 1} {more}"]
-FIRST = "first"
-OTHER = "other"
-
-
-def _card_key(root: Path) -> str | None:
-    try:
-        return json.loads((root / "card.json").read_text()).get("dataset_key")
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
-        return None
-
-
-def check_published(root: Path, record: dict[str, Any] | None, shards: Upstream, key: str | None) -> PublishCheck:
-    """Compare a published dataset folder with its publish record, fast: stats, no reads (module docstring).
-
-    A shard's link is intact when it is the shard's file (same inode) with the shard's size; the shards in
-    ``shards`` are the ones the run verified, so this costs nothing. A link whose shard is not in ``shards`` (a
-    damaged shard the run remakes) is damaged. Any other file is intact when its size, mtime and inode are the
-    recorded ones; when they are not, its sha256 decides (so a file rewritten with the same bytes is not
-    replaced). ``key`` is the dataset shard's key (None when it is not known: it is being remade).
+    ``files`` lists the data files (relative path -> sha256 and bytes); the plots are added to the card's list.
     """
-    check = PublishCheck(record=record or {})
-    if record is None:
-        if not (root / "card.json").exists():
-            check.remake = FIRST
-        elif key is not None and _card_key(root) != key:
-            check.remake = OTHER
-        else:
-            check.remake = "the folder has no record of its files"
-    elif key is not None and record.get("dataset_key") != key:
-        check.remake = OTHER
-    elif not root.is_dir():
-        check.remake = "the folder is missing"
-    elif record.get("card_version") != CARD_VERSION:
-        check.remake = "the card's version changed"
-    if check.remake is not None:
-        return check
-    files: dict[str, Any] = record["files"]
-    for rel, info in files.items():
-        try:
-            st = os.stat(root / rel)
-        except OSError:
-            st = None
-        source = info.get("source")
-        if source is not None:
-            stage, task_id = source
-            entry = shards.entry(stage, task_id) if stage in shards.stages() and task_id in shards.ids(stage) else None
-            if st is None or entry is None:
-                check.problems.append((rel, "missing" if st is None else "damaged"))
-                check.relink.append(rel)
-                if entry is not None and entry.sha256 != info.get("sha256"):
-                    check.rebuild = True  # the shard was remade with other bytes: the card changes too
-                continue
-            shard_st = os.stat(shards.path(stage, task_id))
-            if (st.st_ino, st.st_dev) == (shard_st.st_ino, shard_st.st_dev) and st.st_size == entry.bytes:
-                continue
-            if not info.get("linked") and _unchanged(st, info):
-                continue  # a copy (no hard links there), untouched since it was made
-            if st.st_size != entry.bytes or sha256_file(root / rel) != entry.sha256:
-                check.problems.append((rel, "damaged"))
-                check.relink.append(rel)
-            elif info.get("linked"):
-                check.relink.append(rel)  # an intact separate copy of a linked file: linked again, silently
-            else:
-                check.refresh.append(rel)
-            if entry.sha256 != info.get("sha256"):
-                check.rebuild = True
-            continue
-        if st is None:
-            check.problems.append((rel, "missing"))
-            check.rebuild = True
-        elif not _unchanged(st, info):
-            if sha256_file(root / rel) == info.get("sha256"):
-                check.refresh.append(rel)
-            else:
-                check.problems.append((rel, "damaged"))
-                check.rebuild = True
-    for sub in MANAGED:
-        try:
-            found = sorted(os.scandir(root / sub), key=lambda d: d.name)
-        except OSError:
-            continue
-        for item in found:
-            rel = f"{sub}/{item.name}"
-            if rel not in files and not item.name.startswith(".") and item.is_file(follow_symlinks=False):
-                check.problems.append((rel, STRAY))
-                check.stray.append(rel)
-    return check
+    stats, table = card_stats(root, files, settings)
+    files = dict(files)
+    plots = draw_plots(root, table, stats, settings) if settings.plots else []
+    for rel in plots:
+        add_file(files, root, rel)
+    return write_card(root, provenance, files, stats, plots)
 
 
-# ---------------------------------------------------------------------------------------------------------------
-# gen validate
-# ---------------------------------------------------------------------------------------------------------------
+def report(path: str | Path) -> Path:
+    """Render ``card.md``, ``card.json`` and the plots of a published dataset again; returns the card.md path.
+
+    The statistics and plots come from the data files; what the data cannot tell (keys, config, package versions,
+    the data files' hashes) is taken from the existing ``card.json``. So on an intact folder the result is the
+    published card, byte for byte.
+
+    Raises
+    ------
+    graspgen.errors.InputError
+        No dataset there; card.json unreadable or incomplete; a data file it lists missing, of another size
+        (truncated) or unreadable. The message names the file.
+    """
+    sources = card_sources(path)
+    root = sources.root
+    try:
+        make_card(root, sources.provenance, sources.data_files, sources.settings)
+    except pa.ArrowException as exc:  # same size but damaged
+        raise InputError(f"{root / 'grasps.parquet'}: cannot be read ({exc}); gen validate {path} says more") from None
+    return root / "card.md"
+
+
+def _check_shards(run_root: Path) -> tuple[list[str], int]:
+    """Every manifest entry's shard in ``run_root`` exists with its recorded size and sha256."""
+    problems: list[str] = []
+    checked = 0
+    for manifest_path in sorted((run_root / SHARDS).glob(f"*/{MANIFEST}")):
+        manifest = Manifest(manifest_path.parent)
+        for entry in manifest.entries().values():
+            if entry.status != "ok" or entry.file is None:
+                continue
+            shard = manifest.stage_dir / entry.file
+            checked += 1
+            if not shard.is_file():
+                problems.append(f"{shard}: missing (listed in {manifest_path})")
+            elif shard.stat().st_size != entry.bytes:
+                problems.append(f"{shard}: {shard.stat().st_size} bytes, the manifest says {entry.bytes}")
+            elif sha256_file(shard) != entry.sha256:
+                problems.append(f"{shard}: sha256 differs from the manifest's (the file was changed)")
+    return problems, checked
 
 
 def validate(path: str | Path) -> tuple[list[str], int]:
@@ -659,7 +500,7 @@ def validate(path: str | Path) -> tuple[list[str], int]:
     schema of the card and the required columns and types (:data:`graspgen.io.dataset_table.REQUIRED_SCHEMA`),
     rows sorted and unique by (scene_id, grasp_id), outcome codes and names that agree, labels in range, rigid
     poses; every scene and object it names has its file (:func:`graspgen.io.dataset_table.check_table`); card.md is
-    the rendering of card.json.
+    the rendering of card.json (:func:`graspgen.io.publish_check.check_folder`).
 
     Returns
     -------
@@ -667,44 +508,6 @@ def validate(path: str | Path) -> tuple[list[str], int]:
         Each problem starts with the path of the file at fault.
     """
     root = dataset_dir(path)
-    problems: list[str] = []
-    checked = 0
-    run_root = root.parent if (root.parent / SHARDS).is_dir() else None
-    if run_root is not None:
-        for manifest_path in sorted((run_root / SHARDS).glob(f"*/{MANIFEST}")):
-            manifest = Manifest(manifest_path.parent)
-            for entry in manifest.entries().values():
-                if entry.status != "ok" or entry.file is None:
-                    continue
-                shard = manifest.stage_dir / entry.file
-                checked += 1
-                if not shard.is_file():
-                    problems.append(f"{shard}: missing (listed in {manifest_path})")
-                elif shard.stat().st_size != entry.bytes:
-                    problems.append(f"{shard}: {shard.stat().st_size} bytes, the manifest says {entry.bytes}")
-                elif sha256_file(shard) != entry.sha256:
-                    problems.append(f"{shard}: sha256 differs from the manifest's (the file was changed)")
-    try:
-        card = json.loads((root / "card.json").read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        return problems + [f"{root / 'card.json'}: cannot read the card ({exc})"], checked
-    listed = card.get("files", {})
-    for rel, info in listed.items():
-        f = root / rel
-        checked += 1
-        if not f.is_file():
-            problems.append(f"{f}: missing (listed in card.json)")
-        elif f.stat().st_size != info["bytes"] or sha256_file(f) != info["sha256"]:
-            problems.append(f"{f}: sha256 differs from card.json's (the file was changed)")
-    for sub in MANAGED:
-        for f in sorted((root / sub).glob("*")) if (root / sub).is_dir() else []:
-            rel = f.relative_to(root).as_posix()
-            if f.is_file() and rel not in listed and not f.name.startswith("."):
-                problems.append(f"{f}: not part of the dataset (not listed in card.json)")
-    problems += check_table(root, card)
-    try:
-        if (root / "card.md").read_text() != render_card(card):
-            problems.append(f"{root / 'card.md'}: is not the rendering of card.json (run gen report)")
-    except OSError:
-        problems.append(f"{root / 'card.md'}: missing")
-    return problems, checked
+    problems, checked = _check_shards(root.parent) if (root.parent / SHARDS).is_dir() else ([], 0)
+    found, listed = check_folder(root)
+    return problems + found, checked + listed

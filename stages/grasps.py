@@ -1,8 +1,8 @@
 """Stage 3, ``grasps``: antipodal grasp candidates on every object of a scene, checked by the collision pre-filter.
 
-One task per scene; the work is :func:`graspgen.sim.scene_grasps.sample_scene_grasps` (see there for how candidates
-are sampled until each object has ``max_per_object`` that pass the pre-filter, and for the table's columns). This
-module fans it out and writes the Parquet shard; the shard's metadata holds the per-object counts (tried, screened
+One task per scene; the work is :func:`graspgen.workflows.scene_grasps.sample_scene_grasps` (see there for how
+candidates are sampled until each object has ``max_per_object`` that pass the pre-filter, and for the table's columns).
+This module fans it out and writes the Parquet shard; the shard's metadata holds the per-object counts (tried, screened
 out, pre-filter codes, kept), which the dataset card sums per object. Warnings: an object wider than the stroke
 with no reachable grasp, an object short of its target after ``max_candidates``, and (:func:`ungraspable`) a target
 object for which the sampler found no contact pair at all.
@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 
 from graspgen.geometry.antipodal import narrowest_width
+from graspgen.grippers import gripper_files
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
-from graspgen.sim.grippers import gripper_files
-from graspgen.sim.scene_grasps import GraspsParams, sample_scene_grasps
+from graspgen.workflows.scene_grasps import GraspsParams, sample_scene_grasps
 from pipeline.errors import ConfigError
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage

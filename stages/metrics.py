@@ -1,7 +1,7 @@
 """Stage 6, ``metrics``: Ferrari-Canny epsilon, force closure, minimum closure friction, and the probability of
 force closure and robust epsilon under contact noise (``pfc_contact``, ``epsilon_robust``) of every grasp.
 
-One task per scene; the work is :func:`graspgen.quality.epsilon.scene_metrics` (see there for the columns). The
+One task per scene; the work is :func:`graspgen.workflows.metrics.scene_metrics` (see there for the columns). The
 task's ``rng`` is the contact noise's only source.
 """
 
@@ -16,7 +16,9 @@ import pyarrow.parquet as pq
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
 from graspgen.io.scenes import read_scene
-from graspgen.quality.epsilon import CONTACT_SOURCES, MetricsParams, scene_metrics
+from graspgen.quality.contact_noise import MetricsParams
+from graspgen.quality.contact_set import CONTACT_SOURCES
+from graspgen.workflows.metrics import scene_metrics
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
 

@@ -1,6 +1,6 @@
 """Stage ``object_grasps``: an object-centric grasp set per object, ACRONYM / GraspGen style.
 
-One task per object (input ``objects``); the work is :func:`graspgen.sim.object_grasps.label_object_grasps` (see
+One task per object (input ``objects``); the work is :func:`graspgen.workflows.object_grasps.label_object_grasps` (see
 there for the candidates, the protocol and the table's columns): grasps over the whole sphere around the object
 alone in free space, rolled out until ``target_positives`` successes and ``target_negatives`` failures are kept or
 ``max_candidates`` were tried. One Parquet shard per object; an object that falls short of a target is named in the
@@ -14,10 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from graspgen.grippers import gripper_files
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
-from graspgen.sim.grippers import gripper_files
-from graspgen.sim.object_grasps import ObjectGraspsParams, label_object_grasps
+from graspgen.workflows.object_grasps import label_object_grasps
+from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
 
@@ -50,7 +51,7 @@ class ObjectGraspsStage(GraspStage):
 
 def shortfall(name: str, meta: dict[str, Any]) -> str | None:
     """The warning for an object whose targets were not reached (None when they were), from the meta of
-    :func:`graspgen.sim.object_grasps.label_object_grasps`."""
+    :func:`graspgen.workflows.object_grasps.label_object_grasps`."""
     if meta["reached"]:
         return None
     counts = (f"object {name!r}: {meta['positives']} of {meta['target_positives']} positives, "

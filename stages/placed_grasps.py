@@ -1,7 +1,7 @@
 """Stage ``placed_grasps``: every scene's objects given their object-level grasp sets, as ACRONYM builds its scenes.
 
-One task per scene; the work is :func:`graspgen.sim.placed_grasps.place_object_grasps` (see there for the check, the
-label and the table's columns). A task reads its scene, and the object records and object grasp sets (stage
+One task per scene; the work is :func:`graspgen.workflows.placed_grasps.place_object_grasps` (see there for the check,
+the label and the table's columns). A task reads its scene, and the object records and object grasp sets (stage
 ``object_grasps``, one shard per object, task id = object name) of the objects the scenes stage's manifest says the
 scene holds (every object when the manifest does not say). An object without a grasp set stays an obstacle and gets
 no rows; the task's warnings name it.
@@ -18,7 +18,7 @@ import pyarrow.parquet as pq
 
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
-from graspgen.sim.placed_grasps import PlacedGraspsParams, place_object_grasps
+from graspgen.workflows.placed_grasps import PlacedGraspsParams, place_object_grasps
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from graspgen.errors import GraspGenError
 from pipeline.errors import GenError
-from pipeline.scheduler import Project
+from pipeline.plan import Project
 from stages.config import Config
 from stages.dataset import OBJECT_SETS, PROBE, DatasetStage
 from stages.grasps import GraspsStage

@@ -1,7 +1,7 @@
 """Stage 5, ``robustness``: every successful grasp rolled out again from perturbed copies (TCP pose, optionally the
 object's planar pose, the object's mass, centre of mass and friction).
 
-One task per scene; the work is :func:`graspgen.quality.robustness.scene_robustness` (see there for what is
+One task per scene; the work is :func:`graspgen.workflows.robustness.scene_robustness` (see there for what is
 perturbed and the columns: ``robustness``, and ``grip_robustness`` over the copies not stopped by a collision).
 Version 2: 14 draws per copy (mass, centre of mass, friction), the ``grip_robustness`` columns. Version 3: the
 centre-of-mass offset is on by default (5 mm) and held over the object's support (``resting_com_offset``).
@@ -17,8 +17,8 @@ import pyarrow.parquet as pq
 
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import ObjectRecord, read_object
-from graspgen.quality.robustness import RobustnessTaskParams, scene_robustness
-from graspgen.sim.rollouts import scene_simulator
+from graspgen.workflows.robustness import RobustnessTaskParams, scene_robustness
+from graspgen.workflows.rollouts import scene_simulator
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
 

@@ -1,6 +1,6 @@
 """Stage 4, ``rollouts``: every collision-free grasp of a scene grasped and lifted in MuJoCo (outcome codes 0-5).
 
-One task per scene; the work is :func:`graspgen.sim.rollouts.roll_out_table` (see there for the columns).
+One task per scene; the work is :func:`graspgen.workflows.rollouts.roll_out_table` (see there for the columns).
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import pyarrow.parquet as pq
 
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
-from graspgen.sim.lift import OUTCOME_NAMES
-from graspgen.sim.rollouts import RolloutsParams, roll_out_table, scene_simulator
+from graspgen.sim.protocols import OUTCOME_NAMES
+from graspgen.workflows.rollouts import RolloutsParams, roll_out_table, scene_simulator
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
 

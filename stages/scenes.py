@@ -1,7 +1,7 @@
 """Stage 2, ``scenes``: random, physically settled scenes of the objects on a support, seen by cameras.
 
 One task per scene (``scene_000000``, ...); each may draw any object the config allows (their keys enter its key).
-The scene itself is made by :func:`graspgen.sim.scenes.make_scene` (placement, settling, rendering: see there for
+The scene itself is made by :func:`graspgen.workflows.scenes.make_scene` (placement, settling, rendering: see there for
 the steps and the shard layout); this module only fans the work out and writes the shard.
 """
 
@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 import graspgen.sim.gl  # noqa: F401 - imported first: chooses MUJOCO_GL before anything imports mujoco
 from graspgen.io.files import write_h5  # noqa: E402
 from graspgen.io.objects import read_object
-from graspgen.sim.scenes import ScenesParams, check_rendering, make_scene
+from graspgen.workflows.scenes import ScenesParams, check_rendering, make_scene
 from pipeline.errors import ConfigError, StageError  # noqa: E402
 from pipeline.stage import RunContext, Task, Upstream  # noqa: E402
 from stages.base import GraspStage

@@ -2,9 +2,21 @@ import os
 import sys
 from pathlib import Path
 
-# The toy pipeline module must be importable in joblib worker processes too.
-sys.path.insert(0, str(Path(__file__).parent))
-os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(Path(__file__).parent), os.environ.get("PYTHONPATH")]))
+import pytest
+
+# The tests' helper modules (tests.toy_stages, tests.shapes, tests.paths) import from the repository root, here and
+# in the joblib and dask worker processes. Never put tests/ itself on the path: its graspgen/ folder would shadow
+# the library as a namespace package.
+_REPO = str(Path(__file__).resolve().parent.parent)
+sys.path.insert(0, _REPO)
+os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [_REPO, os.environ.get("PYTHONPATH")]))
 from graspgen.sim.gl import select_backend  # noqa: E402
 
 select_backend()  # before any test module imports mujoco (MUJOCO_GL is read once); workers inherit the choice
+
+
+@pytest.fixture
+def no_mujoco_log_in_repo(tmp_path, monkeypatch):
+    """Run the test in its own temporary folder: MuJoCo writes MUJOCO_LOG.TXT into the cwd on errors, and it must
+    not land in the repository. Used by the modules that simulate (``pytestmark = pytest.mark.usefixtures(...)``)."""
+    monkeypatch.chdir(tmp_path)

@@ -1,7 +1,8 @@
 """A tiny two-stage pipeline with no domain code, to test the engine on its own.
 
-``numbers`` writes one HDF5 shard per id (random draws from the task rng); ``sums`` reads them all and writes
-their sum. A task whose id starts with ``bad`` raises, to exercise failure handling.
+``numbers`` writes one JSON shard per id (random draws from the task rng); ``sums`` reads them all and writes
+their sum. A task whose id starts with ``bad`` raises, to exercise failure handling. The engine benchmark
+(``python -m bench.bench_engine``) runs the same pipeline at 10k+ tasks (``numbers.count``, ``numbers.work_ms``).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 
 from pipeline.config import RunConfig
 from pipeline.errors import GenError
-from pipeline.scheduler import Project
+from pipeline.plan import Project
 from pipeline.stage import RunContext, Stage, Task, Upstream
 
 
@@ -31,6 +32,15 @@ def read_json(path: Path) -> dict:
     return json.loads(Path(path).read_text())
 
 
+def spin(seconds: float) -> float:
+    """Burn ``seconds`` of CPU; returns a checksum."""
+    end = time.process_time() + seconds
+    acc = 0.0
+    while time.process_time() < end:
+        acc += sum(i * 0.5 for i in range(200))
+    return acc
+
+
 @dataclasses.dataclass(frozen=True)
 class NumbersParams:
     ids: tuple[str, ...] = ("a", "b", "c", "d")
@@ -43,6 +53,12 @@ class NumbersParams:
     """Optional raw input whose bytes enter every key."""
     disk_full_while: str | None = None
     """While this file exists, writing a shard fails as on a full disk (ENOSPC), after a partial write."""
+    count: int = 0
+    """When > 0, this many tasks ``n000000``, ``n000001``, ... instead of ``ids`` (10k ids in the params would be
+    pickled into every task)."""
+    work_ms: float = 0.0
+    """CPU milliseconds each task burns (not sleep: a sleeping task would hide contention); when > 0 its entry's
+    meta also holds the task's CPU seconds, its process id and that process's CPU clock after it."""
 
     def __post_init__(self) -> None:
         if self.size <= 0:
@@ -69,18 +85,26 @@ class NumbersStage(Stage):
 
     def tasks(self, params: NumbersParams, upstream: Upstream) -> list[Task]:
         inputs = (params.input_file,) if params.input_file else ()
+        ids = [f"n{i:06d}" for i in range(params.count)] if params.count > 0 else params.ids
         # Longer ids claim more work, so tests can see the scheduler's longest-first order.
-        return [Task(id=i, inputs=inputs, cost=len(i)) for i in params.ids]
+        return [Task(id=i, inputs=inputs, cost=len(i)) for i in ids]
 
     def run(self, task, params, upstream, rng, out: Path, ctx: RunContext):
         if task.id.startswith("bad"):
             raise InputError(f"{task.id}: this input is broken on purpose")
+        start = time.process_time()
         time.sleep(params.sleep)
+        spin(params.work_ms / 1000.0)
         if params.disk_full_while and Path(params.disk_full_while).exists():
             out.write_text('{"x": [0.1, ')  # what got onto the disk before it filled up
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         write_json(out, {"x": rng.normal(size=params.size).tolist(), "id": task.id})
-        return {"n": params.size}
+        if params.work_ms <= 0:
+            return {"n": params.size}
+        # The worker's CPU clock after the task: its largest value per pid is that worker's whole CPU time, so the
+        # workers' CPU outside the tasks can be told apart from the tasks' own, whatever the machine's load.
+        cpu = time.process_time()
+        return {"n": params.size, "cpu": cpu - start, "pid": os.getpid(), "worker_cpu": cpu}
 
 
 class SumsStage(Stage):

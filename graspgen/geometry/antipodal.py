@@ -26,7 +26,7 @@ Algorithm (ARCHITECTURE.md, One grasp's path, step 3), one call of :func:`sample
      is still graspable in an 85 mm gripper although 70 mm + ``width_margin`` exceeds the stroke.
 
 5. **Orientations.** The TCP frame has ``x = (p2 - p1) / width`` (``p1`` is the *left* pad's contact, on -x;
-   ``p2`` the *right* pad's, on +x: :mod:`graspgen.sim.grippers`). ``num_orientations`` approach axes ``z``
+   ``p2`` the *right* pad's, on +x: :mod:`graspgen.grippers`). ``num_orientations`` approach axes ``z``
    perpendicular to ``x`` are evenly spaced about ``x``, starting at a random phase (one per ray, from ``rng``);
    ``y = z x x``, so ``[x y z]`` is a proper rotation.
 6. **Approach filter** on the world-frame approach axis ``z_w = R_object z`` (``object_pose`` places the object):
@@ -65,7 +65,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from graspgen.sim.grippers import GripperSpec
+from graspgen.errors import SettingsError
+from graspgen.grippers import GripperSpec
 from graspgen.validation import (
     check,
     check_choice,
@@ -330,8 +331,9 @@ def grasp_depths(gripper: GripperSpec, params: AntipodalParams) -> np.ndarray:
         return np.zeros(1)
     deepest = gripper.pad_size[2] / 2.0 - params.depth_margin
     if not deepest > 0.0:
-        raise ValueError(f"params.depth_margin: {params.depth_margin} m leaves no depth range on the pads of gripper "
-                         f"{gripper.name!r} (pad length {gripper.pad_size[2]} m); use num_depths 1 or a smaller margin")
+        raise SettingsError(f"params.depth_margin: {params.depth_margin} m leaves no depth range on the pads of "
+                            f"gripper {gripper.name!r} (pad length {gripper.pad_size[2]} m); use num_depths 1 or a "
+                            "smaller margin")
     return np.linspace(0.0, deepest, params.num_depths)
 
 
@@ -364,7 +366,7 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
 
     Raises
     ------
-    ValueError
+    SettingsError
         A wrong argument type/shape, ``params.width_margin`` leaving no usable opening for ``gripper``, or
         ``params.depth_margin`` no depth range on its pads.
     """
@@ -376,29 +378,83 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     min_width = max(gripper.min_width, params.surface_offset)
     max_width = gripper.max_width - params.min_clearance
     if max_width < min_width:
-        raise ValueError(f"params.min_clearance: {params.min_clearance} m leaves no opening for gripper "
-                         f"{gripper.name!r} (max_width {gripper.max_width} m)")
+        raise SettingsError(f"params.min_clearance: {params.min_clearance} m leaves no opening for gripper "
+                            f"{gripper.name!r} (max_width {gripper.max_width} m)")
     depths = grasp_depths(gripper, params)
     if not uses_embree(mesh):
         warnings.warn("trimesh has no Embree ray intersector (install embreex): antipodal sampling will be ~1000x "
                       "slower", RuntimeWarning, stacklevel=2)
 
+    rays = _draw_rays(mesh, params, rng)
+    hits = _second_contacts(mesh, rays, params.surface_offset)
+    checks = _pair_checks(rays, hits, min_width, max_width, _cos_friction(params.friction))
+    keep_rays = checks["keep_rays"]
+    pair, orient, cos_t, sin_t, a, b, approach_angle, keep = _orientations(
+        hits["x_axis"][keep_rays], rays["phase"][keep_rays], T_world, params)
+    mid = (rays["p1"][keep_rays] + hits["p2"][keep_rays]) / 2.0
+    n_depth = len(depths)
+    pair, orient = np.repeat(pair, n_depth), np.repeat(orient, n_depth)
+    depth = np.tile(depths, len(pair) // n_depth)
+    pose_obj = _tcp_poses(hits["x_axis"][keep_rays], a, b, mid, cos_t, sin_t, pair, orient, depth)
+    pose_world = np.matmul(T_world, pose_obj)
+    approach_angle = approach_angle[pair, orient]
+    rows = keep_rays[pair]
+    counts = _reject_counts(rays, hits, checks, keep, n_depth, len(rows))
+    return AntipodalCandidates(
+        p1=_frozen(rays["p1"][rows]),
+        p2=_frozen(hits["p2"][rows]),
+        n1=_frozen(rays["n1"][rows]),
+        n2=_frozen(hits["n2"][rows]),
+        face1=_frozen(rays["face1"][rows]),
+        face2=_frozen(hits["hit"][rows]),
+        width=_frozen(hits["width"][rows]),
+        pose_object=_frozen(pose_obj),
+        pose_world=_frozen(pose_world),
+        approach_angle=_frozen(approach_angle),
+        depth=_frozen(depth),
+        ray_index=_frozen(rows.astype(np.int64)),
+        object_pose=_frozen(T_world.copy()),
+        rejected=counts,
+    )
+
+
+def _reject_counts(rays: dict, hits: dict, checks: dict, keep: np.ndarray, n_depth: int, kept: int) -> RejectCounts:
+    return RejectCounts(
+        rays=len(rays["d"]),
+        no_exit=int(np.count_nonzero(~hits["exit_ok"])),
+        outside_cone=int(np.count_nonzero(checks["fail_cone"])),
+        width_too_small=int(np.count_nonzero(checks["fail_small"])),
+        width_too_large=int(np.count_nonzero(checks["fail_large"])),
+        pairs=int(len(checks["keep_rays"])),
+        approach=int((keep.size - np.count_nonzero(keep)) * n_depth),
+        kept=int(kept),
+    )
+
+
+def _cos_friction(friction: float) -> float:
+    """cos(atan(mu)): the cosine of the friction cone's half angle."""
+    return 1.0 / math.sqrt(1.0 + friction ** 2)
+
+
+def _draw_rays(mesh: trimesh.Trimesh, params: AntipodalParams, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """The random draws, all up front in a fixed order so the stream does not depend on the geometry: first
+    contacts ``p1`` ``(r, 3)`` on faces ``face1`` with inward normals ``n1``, one row per ray; ray directions ``d``
+    ``(r, 3)`` in the friction cone; orientation phases ``phase`` ``(r,)``."""
     n_rays_per = params.rays_per_point
-    n_orient = params.num_orientations
-    cos_max = 1.0 / math.sqrt(1.0 + params.friction ** 2)  # cos(atan(mu))
-
-    # --- random draws, all up front in a fixed order so the stream does not depend on the geometry -------------
     p1, face1 = _sample_surface(mesh, params.num_surface_points, rng)
-    face_normals = mesh.face_normals
-    n1 = -face_normals[face1]
-    d = _cone_directions(n1, n_rays_per, cos_max, rng).reshape(-1, 3)
-    phase = rng.random(len(d)) * (2.0 * np.pi / n_orient)
+    n1 = -mesh.face_normals[face1]
+    d = _cone_directions(n1, n_rays_per, _cos_friction(params.friction), rng).reshape(-1, 3)
+    phase = rng.random(len(d)) * (2.0 * np.pi / params.num_orientations)
     ray_point = np.repeat(np.arange(len(p1)), n_rays_per)
-    p1, face1, n1 = p1[ray_point], face1[ray_point], n1[ray_point]
-    n_rays = len(d)
+    return {"p1": p1[ray_point], "face1": face1[ray_point], "n1": n1[ray_point], "d": d, "phase": phase}
 
-    # --- second contact: first face hit from just inside -------------------------------------------------------
-    origins = p1 + params.surface_offset * d
+
+def _second_contacts(mesh: trimesh.Trimesh, rays: dict[str, np.ndarray], surface_offset: float) -> dict:
+    """Second contact of each ray: the first face hit from just inside. ``exit_ok`` ``(r,)`` marks rays leaving
+    through an exit face; ``p2``, ``n2``, ``width`` and the closing axis ``x_axis`` are per ray."""
+    p1, d = rays["p1"], rays["d"]
+    face_normals = mesh.face_normals
+    origins = p1 + surface_offset * d
     hit = np.asarray(mesh.ray.intersects_first(origins, d), dtype=np.int64)
     exit_ok = hit >= 0
     hit_safe = np.where(exit_ok, hit, 0)
@@ -415,25 +471,33 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     width = np.linalg.norm(delta, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         x_axis = delta / width[:, None]
-    n2 = -fn2
+    return {"hit": hit, "exit_ok": exit_ok, "p2": p2, "n2": -fn2, "width": width, "x_axis": x_axis}
 
-    # --- checks, each ray counted under the first it fails ------------------------------------------------------
-    in_cone = (np.einsum("ij,ij->i", x_axis, n1) >= cos_max) & (np.einsum("ij,ij->i", -x_axis, n2) >= cos_max)
+
+def _pair_checks(rays: dict, hits: dict, min_width: float, max_width: float, cos_max: float) -> dict:
+    """The pair checks, each ray counted under the first it fails; ``keep_rays`` the indices of those passing."""
+    x_axis, exit_ok, width = hits["x_axis"], hits["exit_ok"], hits["width"]
+    in_cone = ((np.einsum("ij,ij->i", x_axis, rays["n1"]) >= cos_max)
+               & (np.einsum("ij,ij->i", -x_axis, hits["n2"]) >= cos_max))
     fail_cone = exit_ok & ~in_cone
     alive = exit_ok & in_cone
     fail_small = alive & (width < min_width)
     alive &= ~fail_small
     fail_large = alive & (width > max_width)
     alive &= ~fail_large
-    keep_rays = np.flatnonzero(alive)
+    return {"fail_cone": fail_cone, "fail_small": fail_small, "fail_large": fail_large,
+            "keep_rays": np.flatnonzero(alive)}
 
-    # --- orientations about the contact line ---------------------------------------------------------------------
+
+def _orientations(x: np.ndarray, phase: np.ndarray, T_world: np.ndarray, params: AntipodalParams):
+    """Orientations about each kept contact line ``x`` ``(k, 3)`` and the approach filter: ``(pair, orient)``
+    indices of the kept ones (row-major: by ray, then by orientation), ``cos_t``/``sin_t`` ``(k, K)``, the
+    perpendicular basis ``a``, ``b`` ``(k, 3)``, ``approach_angle`` ``(k, K)`` and the ``keep`` mask."""
     # With (a, b, x) right-handed orthonormal, z = cos(t) a + sin(t) b gives y = z x x = sin(t) a - cos(t) b: no
     # cross products; the approach filter needs only the world z components of a and b.
-    x = x_axis[keep_rays]
+    n_orient = params.num_orientations
     a, b = _perpendicular_basis(x)
-    mid = (p1[keep_rays] + p2[keep_rays]) / 2.0
-    theta = phase[keep_rays, None] + (2.0 * np.pi / n_orient) * np.arange(n_orient)  # (k, K)
+    theta = phase[:, None] + (2.0 * np.pi / n_orient) * np.arange(n_orient)  # (k, K)
     cos_t, sin_t = np.cos(theta), np.sin(theta)
     # World z component of the approach axis (row 2 of R_world @ z), for the filter before building any pose.
     z_world_z = cos_t * (a @ T_world[2, :3])[:, None] + sin_t * (b @ T_world[2, :3])[:, None]  # (k, K)
@@ -444,11 +508,13 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
         keep = z_world_z < 0.0
     else:
         keep = np.ones(z_world_z.shape, dtype=bool)
-    pair, orient = np.nonzero(keep)  # row-major: by ray, then by orientation
-    # --- depths: each kept orientation repeated num_depths times (innermost), the TCP set back along -z ----------
-    n_depth = len(depths)
-    pair, orient = np.repeat(pair, n_depth), np.repeat(orient, n_depth)
-    depth = np.tile(depths, len(pair) // n_depth)
+    pair, orient = np.nonzero(keep)
+    return pair, orient, cos_t, sin_t, a, b, approach_angle, keep
+
+
+def _tcp_poses(x, a, b, mid, cos_t, sin_t, pair, orient, depth) -> np.ndarray:
+    """``(m, 4, 4)`` TCP poses in the object frame: each kept orientation at each depth (innermost), the TCP set
+    back along -z from the contacts' midpoint."""
     cos_k, sin_k = cos_t[pair, orient, None], sin_t[pair, orient, None]
     a_k, b_k = a[pair], b[pair]
     z_k = cos_k * a_k + sin_k * b_k
@@ -458,32 +524,4 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     pose_obj[:, :3, 2] = z_k
     pose_obj[:, :3, 3] = mid[pair] - depth[:, None] * z_k
     pose_obj[:, 3, 3] = 1.0
-    pose_world = np.matmul(T_world, pose_obj)
-    approach_angle = approach_angle[pair, orient]
-    rows = keep_rays[pair]
-    counts = RejectCounts(
-        rays=n_rays,
-        no_exit=int(np.count_nonzero(~exit_ok)),
-        outside_cone=int(np.count_nonzero(fail_cone)),
-        width_too_small=int(np.count_nonzero(fail_small)),
-        width_too_large=int(np.count_nonzero(fail_large)),
-        pairs=int(len(keep_rays)),
-        approach=int((keep.size - np.count_nonzero(keep)) * n_depth),
-        kept=int(len(rows)),
-    )
-    return AntipodalCandidates(
-        p1=_frozen(p1[rows]),
-        p2=_frozen(p2[rows]),
-        n1=_frozen(n1[rows]),
-        n2=_frozen(n2[rows]),
-        face1=_frozen(face1[rows]),
-        face2=_frozen(hit[rows]),
-        width=_frozen(width[rows]),
-        pose_object=_frozen(pose_obj),
-        pose_world=_frozen(pose_world),
-        approach_angle=_frozen(approach_angle),
-        depth=_frozen(depth),
-        ray_index=_frozen(rows.astype(np.int64)),
-        object_pose=_frozen(T_world.copy()),
-        rejected=counts,
-    )
+    return pose_obj

@@ -6,7 +6,7 @@ its open position; the pad stops at its nearest hit, and every ray hitting withi
 contact point (several per pad on a flat face, one on a sphere). The object is held fixed while the pads close,
 so this is the contact set a quasi-static closing would reach, not what a simulation would settle into.
 
-Frames: TCP frame as in :mod:`graspgen.sim.grippers` (z approach, x closing; the right pad on +x, the left on -x).
+Frames: TCP frame as in :mod:`graspgen.grippers` (z approach, x closing; the right pad on +x, the left on -x).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import dataclasses
 import numpy as np
 import trimesh
 
-from graspgen.sim.grippers import GripperSpec
+from graspgen.grippers import GripperSpec
 from graspgen.validation import check_positive_int, check_transforms
 
 LEFT, RIGHT = 0, 1

@@ -5,7 +5,7 @@
 mesh bytes, the :class:`CoacdParams` and the CoACD version.
 
 :func:`hull_slack` measures how far the union of the parts reaches beyond the true surface (what MuJoCo collides
-with that the mesh does not have), to choose CoACD settings by (``bench/hull_slack.py``).
+with that the mesh does not have), to choose CoACD settings by (``studies/hull_slack.py``).
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ from scipy.spatial import QhullError
 from graspgen.geometry.mesh_io import _check_mesh, _label
 from graspgen.validation import check, check_choice, check_instance, check_number, check_positive_int
 
-__all__ = ["CoacdParams", "HullSlack", "convex_decomposition", "hull_slack"]
+__all__ = ["CoacdParams", "HullSlack", "cached_convex_decomposition", "coacd_cache_key", "convex_decomposition",
+           "hull_slack", "write_parts"]
 
 _log = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ class CoacdParams:
 
     slack_p95: float = 1e-3
     """Hull-slack criterion in m (95th percentile of how far the parts' union stands out of the surface,
-    :func:`hull_slack`; half the fingers' 2 mm touch allowance, ``bench/hull_slack.py``): a near-convex mesh
+    :func:`hull_slack`; half the fingers' 2 mm touch allowance, ``studies/hull_slack.py``): a near-convex mesh
     whose own convex hull meets it is not decomposed, and a decomposition meeting it is not refined."""
 
     near_convex_excess: float = 0.05
@@ -456,7 +457,9 @@ def _winding_number(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def _coacd_cache_key(mesh: trimesh.Trimesh, params: CoacdParams) -> str:
+def coacd_cache_key(mesh: trimesh.Trimesh, params: CoacdParams) -> str:
+    """The hex sha256 naming a decomposition in the cache: the mesh's vertices and faces, the settings and the
+    cache format."""
     digest = hashlib.sha256()
     vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
     faces = np.ascontiguousarray(mesh.faces, dtype=np.int32)
@@ -480,17 +483,19 @@ def _package_version(name: str) -> str:
         return "unknown"
 
 
-def _cached_convex_decomposition(
+def cached_convex_decomposition(
     mesh: trimesh.Trimesh, params: CoacdParams, cache_dir: Path | None
 ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`convex_decomposition` through the cache in ``cache_dir`` (keyed by :func:`coacd_cache_key`; None
+    disables it); a corrupt entry is recomputed and overwritten. Returns ``[(vertices (v, 3), faces (f, 3)), ...]``."""
     if cache_dir is None:
         return convex_decomposition(mesh, params)
-    path = cache_dir / f"coacd-{_coacd_cache_key(mesh, params)}.npz"
+    path = cache_dir / f"coacd-{coacd_cache_key(mesh, params)}.npz"
     parts = _read_parts(path)
     if parts is not None:
         return parts
     parts = convex_decomposition(mesh, params)
-    _write_parts(path, parts)
+    write_parts(path, parts)
     return parts
 
 
@@ -516,7 +521,9 @@ BadZipFile (truncated, or a failed CRC), ValueError (not an npz: it looks like p
 missing), TypeError (a plain .npy, or a ``count`` that is not a scalar)."""
 
 
-def _write_parts(path: Path, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
+def write_parts(path: Path, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """Write convex parts ``[(vertices (v, 3), faces (f, 3)), ...]`` to the ``.npz`` cache file ``path``
+    atomically."""
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays: dict[str, np.ndarray] = {"count": np.array(len(parts))}
     for i, (vertices, faces) in enumerate(parts):

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from graspgen.errors import SettingsError
-from graspgen.geometry.convex import CoacdParams, _cached_convex_decomposition
+from graspgen.geometry.convex import CoacdParams, cached_convex_decomposition
 from graspgen.geometry.mass import MassProperties, _freeze, mass_properties
 from graspgen.geometry.mesh_io import load_mesh
 from graspgen.geometry.repair import RepairReport, repair_mesh
@@ -82,6 +82,15 @@ class PreparedObject:
             _freeze(part_vertices, part_faces)
 
 
+def _check_weight(density: float | None, mass: float | None) -> None:
+    if (density is None) == (mass is None):
+        raise SettingsError(f"density, mass: give exactly one, got density={density!r}, mass={mass!r}")
+    if mass is not None:
+        check_number("mass", mass, low=0.0, low_open=True)
+    else:
+        check_number("density", density, low=0.0, low_open=True)
+
+
 def prepare_object(
     path: str | os.PathLike,
     *,
@@ -123,12 +132,7 @@ def prepare_object(
     InputError
         The file cannot be used; the message names it and says why.
     """
-    if (density is None) == (mass is None):
-        raise SettingsError(f"density, mass: give exactly one, got density={density!r}, mass={mass!r}")
-    if mass is not None:
-        check_number("mass", mass, low=0.0, low_open=True)
-    else:
-        check_number("density", density, low=0.0, low_open=True)
+    _check_weight(density, mass)
     check_rng("rng", rng)
     coacd = CoacdParams() if coacd is None else coacd
     poses = StablePoseParams() if poses is None else poses
@@ -148,7 +152,7 @@ def prepare_object(
     if props.from_convex_hull:
         warnings.append(f"{path.name}: mesh is not watertight, mass and inertia taken from its convex hull")
     cache_dir = None if coacd_cache_dir is None else Path(coacd_cache_dir)
-    parts = _cached_convex_decomposition(mesh, coacd, cache_dir)
+    parts = cached_convex_decomposition(mesh, coacd, cache_dir)
     transforms, probabilities = stable_poses(mesh, props, parts, poses, rng)
     return PreparedObject(
         name=path.stem,

@@ -16,25 +16,25 @@ An ACRONYM grasp file is one HDF5 file per object (ARCHITECTURE.md, Conventions)
     gripper/configuration                      (k,)     float    the gripper's joint configuration (opening)
 
 Frames. ACRONYM poses are the gripper's **hand base** (for the Panda: the hand frame at the flange), with z the
-approach direction and x the closing direction, exactly our TCP axes (:mod:`graspgen.sim.grippers`); only the origin
+approach direction and x the closing direction, exactly our TCP axes (:mod:`graspgen.grippers`); only the origin
 differs: our TCP (midway between the pads) sits ``tcp_offset`` along the base's +z (0.1034 m for the Panda hand).
 :func:`tcp_from_hand_base` and :func:`hand_base_from_tcp` convert; the offset comes from the gripper the file names
 in ``gripper/type`` (``franka_panda`` is our ``panda``), so ``read_acronym(p).tcp_poses()`` gives TCP poses whatever
 gripper wrote the file. Strings are stored the way ACRONYM's own files store them (variable-length UTF-8 scalars)
-and read back whether they come as ``bytes`` or ``str``. Root attributes of the file (:func:`export_object_acronym`
-writes ``protocol``) are read into :attr:`AcronymGrasps.attrs`.
+and read back whether they come as ``bytes`` or ``str``. Root attributes of the file (the object export writes
+``protocol``) are read into :attr:`AcronymGrasps.attrs`.
 
-Two exports of a published dataset folder write one such file per object, ``acronym/<object>.h5``, with the mesh as
-``acronym/meshes/<object>.obj`` (in metres, so ``object/scale`` is 1; ``object/file`` is ``meshes/<object>.obj``,
-relative to the ``acronym`` folder, ACRONYM's mesh root):
+Two exports of a published dataset folder (:mod:`graspgen.io.acronym_export`) write one such file per object,
+``acronym/<object>.h5``, with the mesh as ``acronym/meshes/<object>.obj`` (in metres, so ``object/scale`` is 1;
+``object/file`` is ``meshes/<object>.obj``, relative to the ``acronym`` folder, ACRONYM's mesh root):
 
-* :func:`export_object_acronym`, ACRONYM's own meaning: the object-centric grasp sets of ``object_grasps.parquet``
-  (:mod:`graspgen.sim.object_grasps`), labelled in free space by a free-space protocol (``acronym``: ACRONYM's
+* ``export_object_acronym``, ACRONYM's own meaning: the object-centric grasp sets of ``object_grasps.parquet``
+  (:mod:`graspgen.workflows.object_grasps`), labelled in free space by a free-space protocol (``acronym``: ACRONYM's
   close-and-shake test). ``flex/object_in_gripper`` is that protocol's success (still in the hand: the
   still-held label) and the four ``flex/object_motion_during_{closing,shaking}_{linear,angular}`` are its motion
   measures (:data:`FLEX_MOTION`); the firm-hold label (:mod:`graspgen.sim.lift`) is the extra quality
   ``graspgen/firm_hold`` (1 / 0), with the measures it reads, ``graspgen/max_rel_{translation,rotation}``.
-* :func:`export_acronym`: the scene-bound grasps of ``grasps.parquet`` (success = the table-top rollout's outcome 5),
+* ``export_acronym``: the scene-bound grasps of ``grasps.parquet`` (success = the table-top rollout's outcome 5),
   in each object's mesh frame. Same file layout, but not ACRONYM's free-space label.
 """
 
@@ -43,20 +43,15 @@ from __future__ import annotations
 import dataclasses
 import io
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
-import pyarrow as pa
-import pyarrow.parquet as pq
 
 from graspgen.errors import InputError, SettingsError
-from graspgen.io.arrow import column_array
-from graspgen.io.atomic import atomic_path, write_text_atomic
-from graspgen.io.dataset_table import float_values
-from graspgen.sim.grippers import load_gripper
+from graspgen.grippers import ACRONYM_GRIPPER, load_gripper
 from graspgen.validation import check_number, check_transforms
 
 __all__ = [
@@ -68,8 +63,7 @@ __all__ = [
     "gripper_name",
     "read_acronym",
     "write_acronym",
-    "export_acronym",
-    "export_object_acronym",
+    "obj_text",
     "FLEX_MOTION",
     "FIRM_KEY",
     "FIRM_COLUMNS",
@@ -79,7 +73,7 @@ SUCCESS_KEY = "flex/object_in_gripper"
 """Key (below ``grasps/qualities``) of ACRONYM's success label."""
 
 GRIPPER_ALIASES: dict[str, str] = {"franka_panda": "panda"}
-"""ACRONYM's ``gripper/type`` names -> our gripper registry names (:data:`graspgen.sim.grippers.GRIPPERS`)."""
+"""ACRONYM's ``gripper/type`` names -> our gripper registry names (:data:`graspgen.grippers.GRIPPERS`)."""
 
 _FILE_NAMES = {v: k for k, v in GRIPPER_ALIASES.items()}
 """Our gripper names -> the ``gripper/type`` we write (ACRONYM's own name where it has one)."""
@@ -95,7 +89,7 @@ FLEX_MOTION: dict[str, str] = {
 
 FIRM_KEY = "graspgen/firm_hold"
 """Key (below ``grasps/qualities``) of our firm-hold label (1 / 0): still held and the object's motion in the hand
-within the firm-hold tolerances (:attr:`graspgen.sim.lift.RolloutResult.firm`). ``flex/object_in_gripper`` stays
+within the firm-hold tolerances (:attr:`graspgen.sim.protocols.RolloutResult.firm`). ``flex/object_in_gripper`` stays
 the still-held label."""
 
 FIRM_COLUMNS: tuple[str, ...] = ("firm", "max_rel_translation", "max_rel_rotation")
@@ -119,7 +113,7 @@ def tcp_from_hand_base(T_base: Any, tcp_offset: float) -> np.ndarray:
     T_base : (n, 4, 4) or (4, 4) float
         Hand-base poses (ACRONYM's ``grasps/transforms``).
     tcp_offset : float
-        m, :attr:`graspgen.sim.grippers.GripperSpec.tcp_offset` of the gripper the poses belong to.
+        m, :attr:`graspgen.grippers.GripperSpec.tcp_offset` of the gripper the poses belong to.
 
     Returns
     -------
@@ -180,7 +174,7 @@ class AcronymGrasps:
     gripper_configuration: np.ndarray | None = None
     """(k,) float64 gripper joint configuration as stored."""
     attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
-    """Root attributes of the file (ACRONYM writes none; :func:`export_object_acronym` writes ``protocol``), strings
+    """Root attributes of the file (ACRONYM writes none; the object export writes ``protocol``), strings
     decoded."""
     path: str = ""
     """File it was read from (empty when built in memory)."""
@@ -192,7 +186,7 @@ class AcronymGrasps:
         if self.success is not None:
             object.__setattr__(self, "success", np.asarray(self.success).astype(np.int8).reshape(-1))
             if len(self.success) != n:
-                raise ValueError(f"success: expected {n} labels (one per transform), got {len(self.success)}")
+                raise SettingsError(f"success: expected {n} labels (one per transform), got {len(self.success)}")
         for value in (self.transforms, self.success, self.object_com, self.object_inertia,
                       self.gripper_configuration, *self.qualities.values()):
             if isinstance(value, np.ndarray):
@@ -320,7 +314,7 @@ def write_acronym(
     *,
     object_file: str,
     object_scale: float = 1.0,
-    gripper: str = "panda",
+    gripper: str = ACRONYM_GRIPPER,
     object_mass: float | None = None,
     object_com: Any = None,
     object_inertia: Any = None,
@@ -346,7 +340,7 @@ def write_acronym(
     object_scale : float
         Metres per mesh-file unit.
     gripper : str
-        Our gripper name (:data:`graspgen.sim.grippers.GRIPPERS`); written as ACRONYM's name where it has one
+        Our gripper name (:data:`graspgen.grippers.GRIPPERS`); written as ACRONYM's name where it has one
         (``panda`` -> ``franka_panda``).
     object_mass, object_com, object_inertia, object_density, object_friction
         Optional object properties (kg, (3,) m, (3, 3) kg m^2, kg/m^3, -); omitted from the file when None.
@@ -362,13 +356,13 @@ def write_acronym(
     n = len(T_base)
     labels = np.asarray(success).reshape(-1)
     if len(labels) != n:
-        raise ValueError(f"success: expected {n} labels (one per pose), got {len(labels)}")
+        raise SettingsError(f"success: expected {n} labels (one per pose), got {len(labels)}")
     extra = {str(k): np.asarray(v) for k, v in (qualities or {}).items()}
     for key, value in extra.items():
         if key == SUCCESS_KEY:
-            raise ValueError(f"qualities: {SUCCESS_KEY!r} is written from `success`; do not pass it twice")
+            raise SettingsError(f"qualities: {SUCCESS_KEY!r} is written from `success`; do not pass it twice")
         if value.shape[:1] != (n,):
-            raise ValueError(f"qualities[{key!r}]: expected {n} values, got shape {value.shape}")
+            raise SettingsError(f"qualities[{key!r}]: expected {n} values, got shape {value.shape}")
     check_number("object_scale", object_scale, low=0.0, low_open=True)
     config = (np.array([spec.max_width / 2.0]) if gripper_configuration is None
               else np.asarray(gripper_configuration, dtype=np.float64).reshape(-1))
@@ -389,225 +383,6 @@ def write_acronym(
         f.create_dataset("gripper/configuration", data=config)
         for key in sorted(attrs or {}):
             f.attrs[str(key)] = str(attrs[key])  # type: ignore[index]
-
-
-def export_acronym(root: Path) -> list[str]:
-    """Each object's grasps of ``root/grasps.parquet`` as ``acronym/<object>.h5`` (+ ``acronym/meshes/<object>.obj``).
-
-    Poses are the TCP poses in the object's mesh frame (``pose_object``), written as hand-base poses
-    (:func:`write_acronym`); success is outcome 5. Further qualities under ``grasps/qualities/
-    graspgen/``: outcome, width, and the labels present (robustness, pfc, epsilon; NaN where missing;
-    ``firm_hold``, 1 / 0, and ``max_rel_translation`` / ``max_rel_rotation`` when the table has ``firm``). Rows are in
-    grasps.parquet order (by scene, then grasp id); ``graspgen/grasp_id`` and the order give the way back.
-
-    Returns
-    -------
-    list of str
-        The written files, relative to ``root``.
-    """
-    wanted = ["object_name", "gripper", "pose_object", "outcome", "width", "grasp_id"]
-    schema = pq.read_schema(root / "grasps.parquet")
-    labels = [c for c in ("robustness", "pfc", "epsilon") if c in schema.names]
-    firm = [c for c in FIRM_COLUMNS if c in schema.names] if "firm" in schema.names else []
-    table = pq.read_table(root / "grasps.parquet", columns=wanted + labels + firm)
-    written = []
-    for name, part in _by_object(table, root / "grasps.parquet"):
-        gripper = _one_gripper(part, name, root / "grasps.parquet")
-        mesh_rel, props = _write_object_mesh(root, name)
-        qualities = {
-            "graspgen/outcome": part.column("outcome").to_numpy().astype(np.int8),
-            "graspgen/width": part.column("width").to_numpy(),
-            "graspgen/grasp_id": part.column("grasp_id").to_numpy().astype(np.int32),
-        }
-        for label in labels:
-            qualities[f"graspgen/{label}"] = float_values(part.column(label))
-        qualities.update(_firm_qualities(part, firm))
-        T = np.asarray(part.column("pose_object").combine_chunks().values, dtype=np.float64).reshape(-1, 4, 4)
-        rel = f"acronym/{name}.h5"
-        with atomic_path(root / rel) as tmp:
-            write_acronym(
-                tmp,
-                T,
-                part.column("outcome").to_numpy() == 5,
-                object_file=f"meshes/{name}.obj",
-                object_scale=1.0,
-                gripper=gripper,
-                qualities=qualities,
-                **props,
-            )
-        written += [mesh_rel, rel]
-    return written
-
-
-def export_object_acronym(root: Path) -> list[str]:
-    """Each object's free-space grasp set of ``root/object_grasps.parquet`` as ``acronym/<object>.h5`` (ACRONYM's
-    meaning), with its mesh as ``acronym/meshes/<object>.obj``.
-
-    Parameters
-    ----------
-    root : Path
-        A published dataset folder: ``object_grasps.parquet`` (the table of :mod:`graspgen.sim.object_grasps`, rows
-        sorted by object, then ``grasp_id``) and ``objects/<object>.h5`` (:func:`graspgen.io.objects.read_object`:
-        mesh in the same, scaled, mesh frame as ``pose_object``; mass properties).
-
-    Per object, in the table's row order (by ``grasp_id``):
-
-    * ``grasps/transforms``: ``pose_object`` (TCP, object mesh frame) as ACRONYM's hand-base poses,
-      ``T_tcp @ Trans(0, 0, -tcp_offset)`` with the row gripper's ``tcp_offset`` (:func:`write_acronym`);
-    * ``grasps/qualities/flex/object_in_gripper``: ``success`` of the free-space protocol (1 / 0), the still-held
-      label (ACRONYM's meaning);
-    * ``grasps/qualities/graspgen/firm_hold``: ``firm`` (1 / 0, int8), the firm-hold label, and
-      ``graspgen/max_rel_translation`` / ``max_rel_rotation`` (m, rad), the measures it reads, where the table has
-      them;
-    * ``grasps/qualities/flex/object_motion_during_{closing,shaking}_{linear,angular}``: the ``motion_*`` columns
-      (m, rad; NaN where the phase was not reached), where the table has them (:data:`FLEX_MOTION`);
-    * ``grasps/qualities/graspgen/``: ``grasp_id`` (int32), ``outcome`` (int8), ``width`` (contact width, m) and,
-      when present, ``open_width``, ``closed_width``, ``epsilon``, ``robustness`` (float64, NaN for nulls);
-    * ``object/file`` ``meshes/<object>.obj``, ``object/scale`` 1 (the OBJ is in metres), ``object/mass``,
-      ``object/density``, ``object/com``, ``object/inertia`` from the object record; ``gripper/type``; the root
-      attribute ``protocol`` (e.g. ``acronym``).
-
-    Returns
-    -------
-    list of str
-        The written files (mesh, then grasp file, per object in name order), relative to ``root``.
-
-    Raises
-    ------
-    graspgen.errors.InputError
-        The table or an object record is missing or lacks a column / entry; an object's rows name several grippers
-        or protocols. The message names the file.
-    """
-    path = root / "object_grasps.parquet"
-    if not path.is_file():
-        raise InputError(f"{path}: object grasp table not found")
-    names = set(pq.read_schema(path).names)
-    required = ["object_name", "grasp_id", "gripper", "protocol", "pose_object", "success", "outcome", "width"]
-    missing = [c for c in required if c not in names]
-    if missing:
-        raise InputError(f"{path}: not an object grasp table: no column(s) {', '.join(missing)}")
-    motions = [c for c in FLEX_MOTION if c in names]
-    extras = [c for c in ("open_width", "closed_width", "epsilon", "robustness") if c in names]
-    firm = [c for c in FIRM_COLUMNS if c in names] if "firm" in names else []
-    written = []
-    for name, part in objects_of_table(path, required + motions + extras + firm):
-        gripper = _one_gripper(part, name, path)
-        protocols = sorted(set(part.column("protocol").to_pylist()))
-        if len(protocols) != 1:
-            raise InputError(f"{path}: object {name!r} has grasps labelled by several protocols: {protocols}")
-        mesh_rel, props = _write_object_mesh(root, name)
-        qualities: dict[str, np.ndarray] = {FLEX_MOTION[c]: float_values(part.column(c)) for c in motions}
-        qualities["graspgen/grasp_id"] = part.column("grasp_id").to_numpy().astype(np.int32)
-        qualities["graspgen/outcome"] = part.column("outcome").to_numpy().astype(np.int8)
-        for column in ("width", *extras):
-            qualities[f"graspgen/{column}"] = float_values(part.column(column))
-        qualities.update(_firm_qualities(part, firm))
-        rel = f"acronym/{name}.h5"
-        with atomic_path(root / rel) as tmp:
-            write_acronym(
-                tmp,
-                column_array(part, "pose_object", (4, 4)),
-                part.column("success").to_numpy(zero_copy_only=False).astype(bool),
-                object_file=f"meshes/{name}.obj",
-                object_scale=1.0,
-                gripper=gripper,
-                qualities=qualities,
-                attrs={"protocol": str(protocols[0])},
-                **props,
-            )
-        written += [mesh_rel, rel]
-    return written
-
-
-def _firm_qualities(part: pa.Table, columns: list[str]) -> dict[str, np.ndarray]:
-    """The firm-hold qualities of one object's rows: ``graspgen/firm_hold`` (int8 1 / 0, null as 0) and the
-    measures it reads (float64, NaN for nulls), for the :data:`FIRM_COLUMNS` present in ``columns``."""
-    out: dict[str, np.ndarray] = {}
-    for column in columns:
-        if column == "firm":
-            values = part.column("firm").fill_null(False).to_numpy(zero_copy_only=False)
-            out[FIRM_KEY] = values.astype(np.int8)
-        else:
-            out[f"graspgen/{column}"] = float_values(part.column(column))
-    return out
-
-
-def objects_of_table(path: Path, columns: list[str]) -> Iterator[tuple[str, pa.Table]]:
-    """The rows of an object grasp table per ``object_name``, objects in name order, rows in table order, read one
-    row group at a time: memory holds one object's rows (and one row group), not the table.
-
-    A published table is sorted by object (:mod:`graspgen.io.row_groups` writes it so; a first pass over the
-    ``object_name`` column checks it); a table that is not is read whole and split, with the same result."""
-    pf = pq.ParquetFile(path)
-    if not _sorted_by_object(pf, path):
-        yield from _by_object(pq.read_table(path, columns=columns), path)
-        return
-    name: str | None = None
-    parts: list[pa.Table] = []
-    for i in range(pf.metadata.num_row_groups):
-        group = pf.read_row_group(i, columns=columns)
-        names = np.asarray(group.column("object_name").to_pylist(), dtype=object)
-        starts = np.flatnonzero(np.r_[True, names[1:] != names[:-1]]) if len(names) else np.zeros(0, int)
-        for j, start in enumerate(starts):
-            stop = starts[j + 1] if j + 1 < len(starts) else len(names)
-            if names[start] != name:
-                if name is not None:
-                    yield name, pa.concat_tables(parts)
-                name, parts = str(names[start]), []
-            parts.append(group.slice(start, stop - start))
-    if name is not None:
-        yield name, pa.concat_tables(parts)
-
-
-def _sorted_by_object(pf: pq.ParquetFile, path: Path) -> bool:
-    """Whether the ``object_name`` column never decreases (checked one row group at a time)."""
-    last = None
-    for i in range(pf.metadata.num_row_groups):
-        names = np.asarray(pf.read_row_group(i, columns=["object_name"]).column(0).to_pylist(), dtype=object)
-        _check_object_names(names, path)
-        if len(names) == 0:
-            continue
-        if (last is not None and names[0] < last) or bool(np.any(names[1:] < names[:-1])):
-            return False
-        last = names[-1]
-    return True
-
-
-def _check_object_names(names: np.ndarray, path: Path) -> None:
-    if any(not isinstance(n, str) or not n or "/" in n or n in (".", "..") for n in names):
-        raise InputError(f"{path}: object_name must be a non-empty file name (no '/') in every row")
-
-
-def _by_object(table: pa.Table, path: Path) -> list[tuple[str, pa.Table]]:
-    """``table``'s rows per ``object_name``, objects in name order, rows in table order."""
-    names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
-    _check_object_names(names, path)
-    return [(str(name), table.take(pa.array(np.flatnonzero(names == name)))) for name in sorted(set(names))]
-
-
-def _one_gripper(part: pa.Table, name: str, path: Path) -> str:
-    grippers = sorted(set(part.column("gripper").to_pylist()))
-    if len(grippers) != 1:
-        raise InputError(f"{path}: object {name!r} has grasps of several grippers: {grippers}")
-    return str(grippers[0])
-
-
-def _write_object_mesh(root: Path, name: str) -> tuple[str, dict[str, Any]]:
-    """Write ``acronym/meshes/<name>.obj`` from ``root/objects/<name>.h5``; return its path (relative to ``root``)
-    and the object's properties as :func:`write_acronym` keywords."""
-    obj = root / "objects" / f"{name}.h5"
-    if not obj.is_file():
-        raise InputError(f"{obj}: object record not found (needed for the mesh of {name!r})")
-    try:
-        with h5py.File(obj, "r") as f:
-            vertices, faces = f["mesh/vertices"][()], f["mesh/faces"][()]
-            props = {"object_com": f["mass/center_of_mass"][()], "object_inertia": f["mass/inertia"][()],
-                     "object_mass": float(f.attrs["mass"]), "object_density": float(f.attrs["density"])}
-    except (OSError, KeyError) as exc:
-        raise InputError(f"{obj}: not an object record ({exc})") from None
-    mesh_rel = f"acronym/meshes/{name}.obj"
-    write_text_atomic(root / mesh_rel, obj_text(vertices, faces))
-    return mesh_rel, props
 
 
 def obj_text(vertices: np.ndarray, faces: np.ndarray) -> str:

@@ -1,7 +1,7 @@
 """The dataset card's "Scene grasps" section: per object, how the grasps stage got its candidates.
 
 :func:`scene_grasp_counts` sums the per-object counts the grasps stage writes into each scene shard's metadata
-(:func:`graspgen.sim.scene_grasps.sample_scene_grasps`, ``meta["objects"]``) over the scenes; it is what
+(:func:`graspgen.workflows.scene_grasps.sample_scene_grasps`, ``meta["objects"]``) over the scenes; it is what
 ``card.json`` holds under ``scene_grasps``. :func:`scene_grasps_lines` renders it as Markdown (a pure function of
 that dict). Shards written before the counts existed have no ``objects`` entry: the section then says so.
 """

@@ -2,7 +2,7 @@
 
 :class:`GraspTally` reads ``grasps.parquet`` group by group and keeps running counts (outcomes overall, per object
 and per scene, grippers) and the label columns as bare float64 arrays (the order statistics, histograms and rank
-correlations of :func:`graspgen.io.card.label_summary` need every value: 8 bytes a row per label instead of the
+correlations of :func:`graspgen.io.card_stats.label_summary` need every value: 8 bytes a row per label instead of the
 whole row). :class:`ObjectSetTally` and :class:`PlacedTally` do the same for ``object_grasps.parquet`` and
 ``placed_grasps.parquet``, where every figure is a count. Each tally has ``add`` (one row group) and ``merge``
 (another tally, e.g. of another file or shard): counts add, so the figures equal those of the whole table read at
@@ -21,6 +21,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from graspgen.errors import NotFoundError
 from graspgen.io.dataset_table import OUTCOME_NAMES, float_values
 
 __all__ = ["CardTable", "GraspTally", "ObjectSetTally", "PlacedTally", "row_groups"]
@@ -157,7 +158,7 @@ class CardTable:
     path : path
         The grasps.parquet.
     columns : sequence of str
-        The card columns (:func:`graspgen.io.card.card_stats`), in file order: what ``take`` returns.
+        The card columns (:func:`graspgen.io.card_stats.card_stats`), in file order: what ``take`` returns.
     tally : GraspTally
         The tally of that file, fed every row group in order.
     """
@@ -178,7 +179,7 @@ class CardTable:
         if name == "scene_id":
             return _Names(self._tally.scene_names, self._tally.scene_of_row)
         if name not in self._arrays:
-            raise KeyError(f"{name}: not held by the card's table (columns held: outcome, scene_id, labels)")
+            raise NotFoundError(f"{name}: not held by the card's table (columns held: outcome, scene_id, labels)")
         return pa.chunked_array([pa.array(self._arrays[name])])
 
     def take(self, indices: Any) -> pa.Table:

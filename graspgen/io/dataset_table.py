@@ -9,6 +9,54 @@ strings, statistics on; no timestamps) with row groups that hold whole scenes. E
 description (:data:`COLUMN_DOCS`) in the Parquet field metadata; :data:`REQUIRED_SCHEMA` and :data:`LABEL_TYPES`
 are the types every published table has, and :func:`check_table` checks a published table against them and its
 card.
+
+Columns of ``grasps.parquet`` (with the default table stages; every column's description, :data:`COLUMN_DOCS`,
+is also stored in the Parquet field metadata under ``description``;
+poses are 4x4 row-major, TCP frame: z approach, x closing):
+
+=======================  ===============  ===========================================================================
+column                   type             meaning
+=======================  ===============  ===========================================================================
+scene_id                 string           the scene (``scenes/<scene_id>.h5``)
+grasp_id                 int32            grasp id within the scene
+object_name              string           target object (``objects/<object_name>.h5``)
+object_index             int16            target's index in the scene (its segmentation / point id)
+gripper                  string           gripper model
+pose_object              float64[16]      TCP pose in the object's mesh frame
+pose_world               float64[16]      TCP pose in the world (scene) frame
+width                    float64          pad separation at the sampled contacts, m
+open_width               float64          opening before the approach, m
+contact1, contact2       float64[3]       sampled contact points (left, right pad), object frame, m
+normal1, normal2         float64[3]       inward surface normals there, object frame
+approach_angle           float64          approach axis angle from straight down, rad
+prefilter_code           int8             -1 free, 0 ground/support, 1 target, 2 clutter (collision pre-filter)
+outcome                  int8             0 collision_with_ground, 1 collision_with_target, 2 collision_with_clutter,
+                                          3 no_contact_established, 4 slipped_during_lifting, 5 success
+outcome_name             string           its name
+simulated ... rel_rotation                rollout details (``stages.rollouts``): simulated, decided_in, steps,
+                                          sim_time s, closed_width m, lift_gain m, rel_translation m, rel_rotation rad
+contact_points/_normals  list<float64>    finger-object contacts at the end of closing, world frame, k*3 values
+contact_forces           list<float64>    their normal forces, N; contact_fingers list<int8>: 0 left, 1 right
+target_pose_closed       float64[16]      the target's pose when closing ended (maps the contacts to its frame)
+robustness_n             int32            perturbed copies rolled out (0 unless outcome is 5)
+robustness_successes     int32            copies that succeeded
+robustness               float64          success fraction of the copies; NaN when robustness_n = 0
+robustness_lo, _hi       float64          Wilson score 95% interval of it
+grip_robustness          float64          successes among the copies that reached the grip (codes 3-5); NaN if none
+grip_robustness_lo, _hi  float64          Wilson score 95% interval of it
+pfc                      float64          probability of force closure: copies with epsilon > delta
+copy_outcomes            list<int8>       outcome (failure cause) of each copy; copy_epsilon list<float64>: epsilon
+radius_x/_y/_z, _rx/...  float64          robustness radius along / about the TCP axes, m / rad (NaN when off)
+epsilon                  float64          Ferrari-Canny epsilon (unit-free); 0 when not in force closure
+contact_source           string           where epsilon's contacts came from: rollout, raycast or none
+epsilon_contacts         int32            contact points epsilon was computed from
+epsilon_friction         float64          Coulomb coefficient of epsilon's friction cones
+min_closure_friction     float64          smallest tested friction with force closure; NaN when none
+pfc_contact              float64          copies of the contacts under contact noise with epsilon > delta (fraction)
+epsilon_robust           float64          mean epsilon over those copies (Dex-Net-style robust epsilon)
+torque_scale             float64          epsilon's torque scale (object radius about its centre of mass), m
+source_key               string           the key of the scene's rollouts shard (its provenance)
+=======================  ===============  ===========================================================================
 """
 
 from __future__ import annotations
@@ -65,7 +113,8 @@ OUTCOME_NAMES = (
     "slipped_during_lifting",
     "success",
 )
-"""Outcome name by code (the same as :data:`graspgen.sim.lift.OUTCOME_NAMES`; kept here so reading needs no MuJoCo)."""
+"""Outcome name by code (the same as :data:`graspgen.sim.protocols.OUTCOME_NAMES`; kept here so reading needs no
+MuJoCo)."""
 
 
 COLUMN_DOCS: dict[str, str] = {

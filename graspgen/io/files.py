@@ -18,6 +18,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from graspgen.errors import SettingsError
+
 ATTRS = "@attrs"
 """Key in a tree node whose value (a mapping) becomes the HDF5 attributes of that group."""
 
@@ -67,7 +69,7 @@ def _write_dataset(group: h5py.Group, name: str, value: Any) -> None:
         return
     arr = np.require(value, requirements="C")  # unlike ascontiguousarray, keeps a 0-d scalar 0-d
     if arr.dtype.kind in "OUS":
-        raise TypeError(f"{name}: store strings as str scalars or attributes, not arrays of {arr.dtype}")
+        raise SettingsError(f"{name}: store strings as str scalars or attributes, not arrays of {arr.dtype}")
     kwargs: dict[str, Any] = {"track_times": False}
     if arr.size > _COMPRESS_ABOVE:
         kwargs.update(compression="gzip", compression_opts=4, shuffle=True, chunks=_chunks(arr.shape, arr.itemsize))

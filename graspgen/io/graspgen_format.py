@@ -47,7 +47,7 @@ Frames (stated precisely, and tested). ``grasps.transforms`` are the **gripper b
 frame (GraspGen: "4x4 homogeneous transformation matrix of the base link of gripper"), metres. GraspGen's gripper
 convention is z approach (positive z towards the object), x the fingers' closing direction, and its TCP sits ``depth``
 along +z from the base link (``get_transform_from_base_link_to_tool_tcp`` defaults to ``translation([0, 0, depth])``).
-Our hand base (:mod:`graspgen.sim.grippers`: the flange / hand frame) has exactly these axes, and our TCP (midway
+Our hand base (:mod:`graspgen.grippers`: the flange / hand frame) has exactly these axes, and our TCP (midway
 between the pads) is ``tcp_offset`` along its +z. So we write ``T_base = T_tcp @ Trans(0, 0, -tcp_offset)``
 (:func:`graspgen.io.acronym.hand_base_from_tcp`, the same frame ACRONYM files hold); a GraspGen gripper config for
 our gripper therefore has ``depth = tcp_offset`` and an identity ``transform_offset_from_asset_to_graspgen_convention``
@@ -76,11 +76,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from graspgen.errors import InputError
-from graspgen.io.acronym import hand_base_from_tcp, obj_text, objects_of_table, tcp_from_hand_base
+from graspgen.errors import InputError, SettingsError
+from graspgen.grippers import load_gripper
+from graspgen.io.acronym import hand_base_from_tcp, obj_text, tcp_from_hand_base
 from graspgen.io.arrow import column_array
 from graspgen.io.atomic import write_text_atomic
-from graspgen.sim.grippers import load_gripper
+from graspgen.io.row_groups import objects_of_table
 from graspgen.validation import check_number, check_transforms
 
 __all__ = [
@@ -130,7 +131,7 @@ class GraspGenObject:
     success: np.ndarray
     """(n,) bool labels (written as ``object_in_gripper``)."""
     gripper: str
-    """Our gripper name or gripper file (:func:`graspgen.sim.grippers.load_gripper`)."""
+    """Our gripper name or gripper file (:func:`graspgen.grippers.load_gripper`)."""
     grasp_ids: np.ndarray | None = None
     """(n,) int grasp ids (default 0..n-1)."""
     protocol: str = ""
@@ -148,7 +149,7 @@ class GraspGenEntry:
     name: str
     """The JSON file's stem before ``.grasps.json``."""
     gripper: str
-    """Our gripper name (:func:`graspgen.sim.grippers.load_gripper`): the file's ``gripper.source_gripper``, else
+    """Our gripper name (:func:`graspgen.grippers.load_gripper`): the file's ``gripper.source_gripper``, else
     the folder's GraspGen name mapped back (``franka_panda`` -> ``panda``), else the folder name."""
     split: str | None
     """``train`` or ``valid``: the split file listing ``key`` (None when neither does)."""
@@ -223,13 +224,13 @@ def _grasp_json(obj: GraspGenObject, key: str) -> tuple[str, str]:
     n = len(T_tcp)
     success = np.asarray(obj.success).reshape(-1)
     if len(success) != n:
-        raise ValueError(f"{obj.name}: success: expected {n} labels (one per pose), got {len(success)}")
+        raise SettingsError(f"{obj.name}: success: expected {n} labels (one per pose), got {len(success)}")
     ids = np.arange(n) if obj.grasp_ids is None else np.asarray(obj.grasp_ids).reshape(-1)
     if len(ids) != n:
-        raise ValueError(f"{obj.name}: grasp_ids: expected {n} ids (one per pose), got {len(ids)}")
+        raise SettingsError(f"{obj.name}: grasp_ids: expected {n} ids (one per pose), got {len(ids)}")
     firm = None if obj.firm is None else np.asarray(obj.firm).reshape(-1)
     if firm is not None and len(firm) != n:
-        raise ValueError(f"{obj.name}: firm: expected {n} labels (one per pose), got {len(firm)}")
+        raise SettingsError(f"{obj.name}: firm: expected {n} labels (one per pose), got {len(firm)}")
     T_base = hand_base_from_tcp(T_tcp, spec.tcp_offset) if n else T_tcp
     name = graspgen_gripper_name(spec.name)
     data = {
@@ -277,8 +278,8 @@ def write_graspgen(
     graspgen.errors.InputError
         A bad object name, or two entries of one object and gripper (by GraspGen's name: ``robotiq_2f85`` and
         ``robotiq_2f85_mesh`` are both ``robotiq_2f_85``).
-    ValueError
-        Poses, labels or ids of the wrong shape; a split other than train / valid.
+    graspgen.errors.SettingsError
+        Poses, labels or ids of the wrong shape; a split other than train / valid (also a ``ValueError``).
     graspgen.errors.SettingsError
         An unknown gripper.
     """
@@ -287,7 +288,7 @@ def write_graspgen(
     chosen = dict(splits or {})
     for name, split in chosen.items():
         if split not in SPLITS:
-            raise ValueError(f"splits[{name!r}]: must be one of {', '.join(SPLITS)}, got {split!r}")
+            raise SettingsError(f"splits[{name!r}]: must be one of {', '.join(SPLITS)}, got {split!r}")
     written: set[str] = set()
     mesh_digests: dict[str, str] = {}
     listed: dict[str, dict[str, list[str]]] = {}
@@ -453,7 +454,7 @@ def _read_entry(path: Path, root: Path, gripper: str, split_of_key: Mapping[str,
     if len(T):
         try:
             check_transforms("grasps.transforms", T)
-        except ValueError as exc:
+        except SettingsError as exc:
             raise InputError(f"{path}: {exc}") from None
     if success.shape != (len(T),) or (len(T) and success.dtype != np.bool_):
         raise InputError(f"{path}: grasps.object_in_gripper must be {len(T)} booleans (one per transform), got "

@@ -42,7 +42,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from graspgen.errors import GraspGenError
+from graspgen.errors import GraspGenError, NotFoundError, SettingsError
+from graspgen.io.dataset_table import dataset_dir
 
 __all__ = ["GraspDataset", "Grasp", "Scene", "View", "Sample", "open_dataset"]  # + TorchDataset, made when used
 
@@ -56,14 +57,10 @@ def open_dataset(path: str | Path) -> GraspDataset:
 
     Raises
     ------
-    FileNotFoundError
+    graspgen.errors.InputError
         Neither holds a grasps.parquet.
     """
-    path = Path(path)
-    for root in (path, path / "dataset"):
-        if (root / "grasps.parquet").is_file():
-            return GraspDataset(root)
-    raise FileNotFoundError(f"{path}: no published dataset here (no grasps.parquet in it or in {path / 'dataset'})")
+    return GraspDataset(dataset_dir(path))
 
 
 def _to_numpy(value: Any, name: str) -> Any:
@@ -141,7 +138,7 @@ class View:
             T = np.linalg.inv(self.T_world_camera)
             pts = self.points.astype(np.float64) @ T[:3, :3].T + T[:3, 3]
             return pts.astype(np.float32), self.point_ids
-        raise ValueError(f"frame: must be 'world' or 'camera', got {frame!r}")
+        raise SettingsError(f"frame: must be 'world' or 'camera', got {frame!r}")
 
     def to_camera(self, T_world: np.ndarray) -> np.ndarray:
         """Poses (..., 4, 4) given in the world frame, expressed in this camera's frame."""
@@ -164,7 +161,7 @@ class Scene:
     def view(self, index: int = 0) -> View:
         """Camera view ``index``: its images and its cloud (stored, else back-projected from depth)."""
         if not 0 <= index < self.num_views:
-            raise IndexError(f"{self.scene_id}: view must be in [0, {self.num_views}), got {index}")
+            raise SettingsError(f"view: must be in [0, {self.num_views}) for {self.scene_id}, got {index}")
         with h5py.File(self.path, "r") as f:
             cams = f["cameras"]
             K, T = cams["K"][index], cams["T_world_camera"][index]
@@ -218,7 +215,7 @@ class Sample:
             return T
         if frame == "camera":
             return self.view.to_camera(T)
-        raise ValueError(f"frame: must be 'world' or 'camera', got {frame!r}")
+        raise SettingsError(f"frame: must be 'world' or 'camera', got {frame!r}")
 
 
 class GraspDataset:
@@ -263,7 +260,7 @@ class GraspDataset:
             if column == "outcome" and all(isinstance(v, str) for v in values):
                 column = "outcome_name"  # outcome="success" reads naturally
             if column not in self.schema.names:
-                raise KeyError(f"no column {column!r}; columns: {', '.join(self.schema.names)}")
+                raise NotFoundError(f"no column {column!r}; columns: {', '.join(self.schema.names)}")
             e = pc.field(column).isin(values) if len(values) != 1 else pc.field(column) == values[0]
             expr = e if expr is None else expr & e
         return expr
@@ -288,7 +285,7 @@ class GraspDataset:
         if cols is not None:
             unknown = [c for c in cols if c not in self.schema.names]
             if unknown:
-                raise KeyError(f"no column {unknown[0]!r}; columns: {', '.join(self.schema.names)}")
+                raise NotFoundError(f"no column {unknown[0]!r}; columns: {', '.join(self.schema.names)}")
         return pq.read_table(self.root / "grasps.parquet", columns=cols, filters=expr)
 
     def _matching_scenes(self, where: Mapping[str, Any]) -> Iterator[str]:
@@ -316,8 +313,8 @@ class GraspDataset:
 
         Raises
         ------
-        KeyError
-            The dataset has no object sets, or an unknown column.
+        graspgen.errors.NotFoundError
+            The dataset has no object sets, or an unknown column (also a ``KeyError``).
         """
         return self._set_rows("object_grasps", "object_name", object_name, columns, filter, where)
 
@@ -336,7 +333,7 @@ class GraspDataset:
         cols = None if columns is None else list(columns)
         for c in [*(cols or []), *where]:
             if c not in schema.names:
-                raise KeyError(f"no column {c!r} in {name}; columns: {', '.join(schema.names)}")
+                raise NotFoundError(f"no column {c!r} in {name}; columns: {', '.join(schema.names)}")
         values = None if value is None else sorted({value} if isinstance(value, str) else set(value))
         conditions = dict(where) if values is None else {**where, key: values}
         expr = filter
@@ -356,7 +353,7 @@ class GraspDataset:
         """One grasp by its ids (every column)."""
         t = self.grasps(scene_id=scene_id, grasp_id=int(grasp_id))
         if len(t) != 1:
-            raise KeyError(f"no grasp ({scene_id!r}, {grasp_id}) in {self.root}")
+            raise NotFoundError(f"no grasp ({scene_id!r}, {grasp_id}) in {self.root}")
         return Grasp(t.to_pylist()[0])
 
     # -- scenes and objects ---------------------------------------------------------------------------------------
@@ -364,7 +361,7 @@ class GraspDataset:
     def scene(self, scene_id: str) -> Scene:
         path = self.root / "scenes" / f"{scene_id}.h5"
         if not path.is_file():
-            raise KeyError(f"no scene {scene_id!r} in {self.root / 'scenes'}")
+            raise NotFoundError(f"no scene {scene_id!r} in {self.root / 'scenes'}")
         return Scene(path)
 
     def view(self, scene_id: str, index: int = 0) -> View:
@@ -375,7 +372,7 @@ class GraspDataset:
         """``(vertices (v, 3) float64 m, faces (f, 3) int32)`` of an object, in its mesh frame."""
         path = self.root / "objects" / f"{name}.h5"
         if not path.is_file():
-            raise KeyError(f"no object {name!r} in {self.root / 'objects'}")
+            raise NotFoundError(f"no object {name!r} in {self.root / 'objects'}")
         with h5py.File(path, "r") as f:
             return f["mesh/vertices"][()], f["mesh/faces"][()]
 
@@ -478,7 +475,7 @@ class _TorchSamples:
     ):
         _import_torch()  # fail here, with one clear message, when torch is not installed
         if frame not in ("world", "camera"):
-            raise ValueError(f"frame: must be 'world' or 'camera', got {frame!r}")
+            raise SettingsError(f"frame: must be 'world' or 'camera', got {frame!r}")
         self.root = open_dataset(root).root
         ds = self._dataset
         self.labels = [c for c in labels if c in ds.columns]
@@ -578,5 +575,5 @@ def _set_source(root: Path, name: str) -> _SetSource:
     folder = root / name
     files = sorted(folder.glob("*.parquet")) if folder.is_dir() else []
     if not files:
-        raise KeyError(f"no {name} in {root} (neither {one.name} nor a folder {name}/ of Parquet files)")
+        raise NotFoundError(f"no {name} in {root} (neither {one.name} nor a folder {name}/ of Parquet files)")
     return _SetSource(files)

@@ -10,16 +10,17 @@ published tables).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from graspgen.errors import InputError
 
-__all__ = ["GroupedParquetWriter", "write_grasps_parquet"]
+__all__ = ["GroupedParquetWriter", "by_object", "objects_of_table", "write_grasps_parquet"]
 
 
 def write_grasps_parquet(
@@ -145,3 +146,56 @@ def _scene_of(table: pa.Table) -> str:
         if name in table.column_names and len(table):
             return str(table.column(name)[0].as_py())
     return "(empty)"
+
+
+def objects_of_table(path: Path, columns: list[str]) -> Iterator[tuple[str, pa.Table]]:
+    """The rows of an object grasp table per ``object_name``, objects in name order, rows in table order, read one
+    row group at a time: memory holds one object's rows (and one row group), not the table.
+
+    A published table is sorted by object (:func:`write_grasps_parquet` writes it so; a first pass over the
+    ``object_name`` column checks it); a table that is not is read whole and split, with the same result."""
+    pf = pq.ParquetFile(path)
+    if not _sorted_by_object(pf, path):
+        yield from by_object(pq.read_table(path, columns=columns), path)
+        return
+    name: str | None = None
+    parts: list[pa.Table] = []
+    for i in range(pf.metadata.num_row_groups):
+        group = pf.read_row_group(i, columns=columns)
+        names = np.asarray(group.column("object_name").to_pylist(), dtype=object)
+        starts = np.flatnonzero(np.r_[True, names[1:] != names[:-1]]) if len(names) else np.zeros(0, int)
+        for j, start in enumerate(starts):
+            stop = starts[j + 1] if j + 1 < len(starts) else len(names)
+            if names[start] != name:
+                if name is not None:
+                    yield name, pa.concat_tables(parts)
+                name, parts = str(names[start]), []
+            parts.append(group.slice(start, stop - start))
+    if name is not None:
+        yield name, pa.concat_tables(parts)
+
+
+def _sorted_by_object(pf: pq.ParquetFile, path: Path) -> bool:
+    """Whether the ``object_name`` column never decreases (checked one row group at a time)."""
+    last = None
+    for i in range(pf.metadata.num_row_groups):
+        names = np.asarray(pf.read_row_group(i, columns=["object_name"]).column(0).to_pylist(), dtype=object)
+        _check_object_names(names, path)
+        if len(names) == 0:
+            continue
+        if (last is not None and names[0] < last) or bool(np.any(names[1:] < names[:-1])):
+            return False
+        last = names[-1]
+    return True
+
+
+def _check_object_names(names: np.ndarray, path: Path) -> None:
+    if any(not isinstance(n, str) or not n or "/" in n or n in (".", "..") for n in names):
+        raise InputError(f"{path}: object_name must be a non-empty file name (no '/') in every row")
+
+
+def by_object(table: pa.Table, path: Path) -> list[tuple[str, pa.Table]]:
+    """``table``'s rows per ``object_name``, objects in name order, rows in table order."""
+    names = np.asarray(table.column("object_name").to_pylist(), dtype=object)
+    _check_object_names(names, path)
+    return [(str(name), table.take(pa.array(np.flatnonzero(names == name)))) for name in sorted(set(names))]

@@ -9,14 +9,12 @@ from typing import Any, Literal
 import numpy as np  # noqa: E402
 
 import graspgen.sim.gl  # noqa: F401 - imported first: chooses MUJOCO_GL before anything imports mujoco
+from graspgen.errors import InputError  # noqa: E402
 from graspgen.io.files import read_h5  # noqa: E402
-from graspgen.sim.scene_model import (
-    SEG_GROUND,
-    Camera,
-    SupportParams,
-    backproject,
-    transform_points,
-)
+from graspgen.sim.camera import Camera, backproject, transform_points  # noqa: E402
+from graspgen.sim.scene_model import SEG_GROUND  # noqa: E402
+from graspgen.sim.support import SupportParams  # noqa: E402
+from graspgen.validation import check_choice, check_int  # noqa: E402
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -52,10 +50,8 @@ class SceneRecord:
         From the stored cloud (transformed by the view's extrinsics when only the other frame is stored), else
         back-projected from the depth image.
         """
-        if not 0 <= view < len(self.cameras):
-            raise ValueError(f"view: must be in [0, {len(self.cameras)}), got {view}")
-        if frame not in ("world", "camera"):
-            raise ValueError(f"frame: must be 'world' or 'camera', got {frame!r}")
+        check_int("view", view, low=0, high=len(self.cameras) - 1)
+        check_choice("frame", frame, ("world", "camera"))
         T = np.asarray(self.cameras[view].T_world_camera, dtype=float)
         to_frame = {"world": {"world": None, "camera": T}, "camera": {"camera": None, "world": np.linalg.inv(T)}}
         if self.clouds is not None:
@@ -68,7 +64,7 @@ class SceneRecord:
                         pts = transform_points(T_conv, pts).astype(np.float32)
                     return pts, self.clouds["ids"][a:b]
         if self.depth is None or self.segmentation is None:
-            raise ValueError(f"{self.scene_id}: the shard has no images (cameras.render was false)")
+            raise InputError(f"{self.scene_id}: the shard has no images (cameras.render was false)")
         cam = self.cameras[view]
         valid = (self.depth[view] > 0) & (self.segmentation[view] != SEG_GROUND)
         pts = backproject(self.depth[view], cam.K)[valid]

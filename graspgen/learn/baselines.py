@@ -55,7 +55,7 @@ def baselines(train, valid, feature_params: FeatureParams | None, seed: int) -> 
     require_torch()  # scikit-learn comes with the same extra
     from sklearn.ensemble import HistGradientBoostingClassifier
 
-    from graspgen.sim.grippers import load_gripper
+    from graspgen.grippers import load_gripper
 
     feature_params = feature_params or FeatureParams()
     y = np.concatenate([np.asarray(s.label, bool) for s in train])

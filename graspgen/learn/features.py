@@ -14,6 +14,7 @@ import dataclasses
 
 import numpy as np
 
+from graspgen.errors import SettingsError
 from graspgen.validation import check_int, check_number
 
 __all__ = ["FEATURE_VERSION", "FeatureParams", "closing_volume", "grasp_features", "object_rng", "set_features",
@@ -62,7 +63,7 @@ def surface_points(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.rand
     tri = v[np.asarray(faces, dtype=np.int64)]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if not area.sum() > 0:
-        raise ValueError("surface_points: the mesh has no area")
+        raise SettingsError("surface_points: the mesh has no area")
     face = rng.choice(len(tri), size=n, p=area / area.sum())
     u, w = rng.random(n), rng.random(n)
     flip = u + w > 1.0  # fold the unit square onto the triangle: uniform over its area
@@ -119,10 +120,10 @@ def grasp_features(points: np.ndarray, T_tcp: np.ndarray, width: np.ndarray, gri
     T = np.asarray(T_tcp, dtype=np.float64).reshape(-1, 4, 4)
     w = np.asarray(width, dtype=np.float64).reshape(-1)
     if len(w) != len(T):
-        raise ValueError(f"width: expected {len(T)} values (one per pose), got {len(w)}")
+        raise SettingsError(f"width: expected {len(T)} values (one per pose), got {len(w)}")
     k = params.num_points
     if len(P) < k:
-        raise ValueError(f"points: need at least num_points = {k}, got {len(P)}")
+        raise SettingsError(f"points: need at least num_points = {k}, got {len(P)}")
     half = closing_volume(gripper)
     out = np.zeros((len(T), k, 4), dtype=np.float32)
     for s in range(0, len(T), _CHUNK):

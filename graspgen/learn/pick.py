@@ -5,12 +5,12 @@ more often than picking at random?
 
 1. :func:`sample_candidates`: the mesh is loaded, repaired and brought to metres as
    :func:`graspgen.geometry.prepare.prepare_object` does it (so the candidates are in the frame
-   :func:`graspgen.evaluate.evaluate_grasps` rolls them out in), and antipodal candidates are drawn over the whole
-   sphere as the object-grasps stage draws them (:func:`graspgen.geometry.antipodal.sample_antipodal` with
+   :func:`graspgen.workflows.evaluate.evaluate_grasps` rolls them out in), and antipodal candidates are drawn over the
+   whole sphere as the object-grasps stage draws them (:func:`graspgen.geometry.antipodal.sample_antipodal` with
    ``approach="any"``: every call's candidates shuffled, calls repeated until ``n`` are there).
 2. :func:`pick`: the model scores every candidate (:meth:`graspgen.learn.train.TrainedModel.score`); the top ``k``
    by score (ties by candidate index) and ``k`` drawn uniformly without replacement from all candidates.
-3. :func:`simulate_pick`: both groups rolled out with :func:`graspgen.evaluate.evaluate_grasps` (the model's
+3. :func:`simulate_pick`: both groups rolled out with :func:`graspgen.workflows.evaluate.evaluate_grasps` (the model's
    gripper, the ``acronym`` protocol: placed open, close, shake; friction 1.0 as the object-grasps stage uses);
    the success rate of each.
 
@@ -30,8 +30,8 @@ from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal
 from graspgen.geometry.mesh_io import load_mesh
 from graspgen.geometry.repair import repair_mesh
 from graspgen.geometry.units import normalize_units
+from graspgen.grippers import load_gripper
 from graspgen.learn.sources import ObjectGraspSet
-from graspgen.sim.grippers import load_gripper
 from graspgen.validation import check, check_int, check_number, check_rng
 
 __all__ = ["Candidates", "Pick", "PickParams", "pick", "sample_candidates", "simulate_pick"]
@@ -54,7 +54,8 @@ class PickParams:
     sampler: AntipodalParams = dataclasses.field(default_factory=lambda: AntipodalParams(approach="any"))
     """The antipodal sampler (the object-grasps stage's default: approach axes over the whole sphere)."""
     max_extent: float = 1.0
-    """Largest accepted object extent after scaling, m (as :class:`graspgen.evaluate.EvaluateParams`)."""
+    """Largest accepted object extent after scaling, m (as
+    :class:`graspgen.workflows.evaluate_settings.EvaluateParams`)."""
     friction: float = 1.0
     """Object friction of the rollouts (dimensionless; 1.0: ACRONYM's and the object-grasps stage's)."""
     density: float = 700.0
@@ -172,8 +173,9 @@ def simulate_pick(result: Pick, gripper: str, params: PickParams, *, jobs: int =
         ``random_outcomes`` (outcome codes, in the groups' order), ``candidates``, ``mesh``, ``scale``, ``gripper``,
         ``top_scores``, ``random_scores``.
     """
-    from graspgen.evaluate import EvaluateParams, evaluate_grasps
-    from graspgen.sim.lift import Outcome
+    from graspgen.sim.protocols import Outcome
+    from graspgen.workflows.evaluate import evaluate_grasps
+    from graspgen.workflows.evaluate_settings import EvaluateParams
 
     c = result.candidates
     both = np.concatenate([result.top, result.random])

@@ -1,6 +1,6 @@
 """Labelled grasps per object, from ACRONYM files (FleX or our simulator's labels) or a dataset folder, and the
 split of objects into training and held-out sets (by mesh identity, never by grasp). Numpy only (the sim labels
-call :func:`graspgen.evaluate.evaluate_grasps`).
+call :func:`graspgen.workflows.evaluate.evaluate_grasps`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from graspgen.io.atomic import atomic_path
 
 __all__ = ["ObjectGraspSet", "acronym_sets", "dataset_sets", "held_out", "split_by_object"]
 
-SUCCESS = 5  # graspgen.sim.lift.Outcome.SUCCESS
+SUCCESS = 5  # graspgen.sim.protocols.Outcome.SUCCESS
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -118,7 +118,8 @@ def _sim_labels(mesh_path: Path, acr, T: np.ndarray, gripper: str, protocol: str
     """Our simulator's labels of the poses (``held``: outcome 5; ``firm``: held and still in place), cached by
     content under ``cache_dir`` (npz): mesh bytes, scale, poses, gripper, protocol, the evaluate settings, the
     physics code and MuJoCo's version (:func:`_physics_digest`), so an edited simulator never reuses old labels."""
-    from graspgen.evaluate import EvaluateParams, evaluate_grasps
+    from graspgen.workflows.evaluate import evaluate_grasps
+    from graspgen.workflows.evaluate_settings import EvaluateParams
 
     params = EvaluateParams(mass=acr.object_mass, friction=acr.object_friction or 1.0,
                             density=acr.object_density or 700.0)
@@ -143,15 +144,15 @@ def acronym_sets(paths, *, mesh_root=None, labels: str = "flex", per_object: int
                  sim_label: str = "held") -> list[ObjectGraspSet]:
     """One set per ACRONYM file (``paths``: files or folders of ``*.h5``); meshes relative to each file's folder
     unless ``mesh_root``. Widths: the pads closed onto the mesh by ray casts. ``labels``: ``flex``
-    (``object_in_gripper``) or ``sim`` (:func:`graspgen.evaluate.evaluate_grasps`, cached under ``cache_dir``,
+    (``object_in_gripper``) or ``sim`` (:func:`graspgen.workflows.evaluate.evaluate_grasps`, cached under ``cache_dir``,
     default ``.cache/labels``; the CoACD cache goes beside it). ``per_object``: a seeded sample of each file's
     grasps (rng from ``seed`` and the file stem). ``sim_label``: ``held`` (still in the hand, outcome 5) or
-    ``firm`` (held and within the firm-hold tolerances, :attr:`graspgen.sim.lift.RolloutResult.firm`); both are
+    ``firm`` (held and within the firm-hold tolerances, :attr:`graspgen.sim.protocols.RolloutResult.firm`); both are
     cached, so asking for the other costs nothing. InputError naming the file when it cannot be used."""
     import trimesh
 
+    from graspgen.grippers import load_gripper
     from graspgen.io.acronym import read_acronym
-    from graspgen.sim.grippers import load_gripper
 
     if labels not in ("flex", "sim"):
         raise SettingsError(f"labels: {labels!r} is not one of flex, sim")

@@ -125,7 +125,7 @@ class TrainedModel:
 
     def score(self, sets, seed: int = 0) -> list[np.ndarray]:
         """(m,) float64 success probabilities per set (surface points from ``seed``)."""
-        from graspgen.sim.grippers import load_gripper
+        from graspgen.grippers import load_gripper
 
         spec = load_gripper(self.gripper)
         out = []
@@ -150,7 +150,7 @@ def train_evaluator(sets, params: TrainParams, feature_params: FeatureParams | N
                     valid=None) -> TrainedModel:
     """Train on ``sets`` (ObjectGraspSet list, one gripper). ``valid`` (optional): its loss per epoch goes into
     ``train_info["valid_loss"]`` (reported only; nothing is chosen by it)."""
-    from graspgen.sim.grippers import load_gripper
+    from graspgen.grippers import load_gripper
 
     feature_params = feature_params or FeatureParams()
     names = sorted({s.gripper for s in sets})

@@ -92,7 +92,7 @@ def render_problem() -> str | None:
     """One line saying why MuJoCo cannot render images in this process, or None when it should be able to.
 
     Only libraries and settings are looked at (no OpenGL context is made), so it is cheap; a context that still
-    fails to start is reported by :class:`~graspgen.sim.scene_model.SceneRenderer`.
+    fails to start is reported by :class:`~graspgen.sim.render.SceneRenderer`.
     """
     select_backend()
     if not _linux():

@@ -34,7 +34,7 @@ obstacle thinner than the spacing ``approach_distance / (num_approach_samples - 
 Scene conventions (how geoms are classified): a geom belongs to the body tree rooted at a child of the world body.
 Roots named ``obj/...`` (``obj/<index>_<name>``) are objects; the target is named by its root body; every other
 non-gripper geom (a plane named ``ground``, ``support/...`` geoms, anything else static) is ground/support. Gripper
-geoms are found by name (:func:`graspgen.sim.grippers.gripper_geom_ids`).
+geoms are found by name (:func:`graspgen.sim.gripper_state.gripper_geom_ids`).
 
 Speed (why the checker owns a private compiled model): the world is compiled once with the gripper attached, one
 :class:`mujoco.MjData` is reused, and the geoms' contact bitmasks are rewritten in that private model so that only
@@ -52,7 +52,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from graspgen.sim.grippers import GripperSpec, attach_gripper, gripper_geom_ids, jaw_opening, linkage_couplings
+from graspgen.errors import SettingsError
+from graspgen.grippers import GripperSpec, jaw_opening
+from graspgen.sim.gripper_model import attach_gripper
+from graspgen.sim.gripper_state import gripper_geom_ids, linkage_couplings
 from graspgen.validation import check_instance, check_number, check_positive_int, check_transforms
 
 __all__ = [
@@ -95,7 +98,7 @@ Why 2 mm:
 * It is well above MuJoCo's own penetration. Geoms here have no contact margin (MuJoCo's ``margin`` 0: a contact
   exists only where two geoms overlap, so "touching" is "overlapping"), and the soft contact solver lets a pressed
   contact sink in: with the gripper's contact softness (solref 4 ms, solimp 0.95-0.99 over 1 mm;
-  :mod:`graspgen.sim.grippers`) a pad pressing with tens of newtons sits 0.1-0.3 mm inside the object. A tolerance
+  :mod:`graspgen.sim.gripper_model`) a pad pressing with tens of newtons sits 0.1-0.3 mm inside the object. A tolerance
   at that scale would call a finger that merely rests on the surface in the simulation a collision; 2 mm is ~10x.
 * It is what a brush is on a real hand: a pad or fingertip grazing a surface on the way in compresses its
   elastomer and flexes the finger by a millimetre or two without shoving the object. The jaws open to ``width +
@@ -117,9 +120,9 @@ Why 2 mm:
 def _check_widths(widths: object, n: int) -> np.ndarray:
     w = np.asarray(widths, dtype=float)
     if w.shape != (n,):
-        raise ValueError(f"widths: must have shape ({n},) like T_tcp_world, got {w.shape}")
+        raise SettingsError(f"widths: must have shape ({n},) like T_tcp_world, got {w.shape}")
     if not np.isfinite(w).all() or (n and w.min() < 0):
-        raise ValueError("widths: must be finite and >= 0 (m)")
+        raise SettingsError("widths: must be finite and >= 0 (m)")
     return w
 
 
@@ -172,7 +175,7 @@ def touch_allowance(model: mujoco.MjModel, *, prefix: str = "gripper/",
     for side in ("left", "right"):
         body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}{side}_jaw")
         if body < 0:
-            raise ValueError(f"model: no body named {prefix}{side}_jaw (gripper attached with another prefix?)")
+            raise SettingsError(f"model: no body named {prefix}{side}_jaw (gripper attached with another prefix?)")
         jaws.append(body)
     on_jaw = np.zeros(model.nbody, dtype=bool)
     for body in range(model.nbody):
@@ -200,7 +203,7 @@ class CollisionChecker:
         The scene as an :class:`mujoco.MjSpec`: support geoms, objects as bodies ``obj/<index>_<name>`` (mesh geoms)
         at their poses (free joints at ``qpos0`` = their spec pose). It is copied, never modified. If it already
         holds a gripper named ``name_prefix`` (a body ``<name_prefix>base``), that one is used (``gripper`` must
-        describe it); otherwise ``gripper`` is attached with :func:`graspgen.sim.grippers.attach_gripper`. Every
+        describe it); otherwise ``gripper`` is attached with :func:`graspgen.sim.gripper_model.attach_gripper`. Every
         geom whose name starts with ``name_prefix`` is the gripper's.
     gripper
         The gripper whose geoms are checked; gives the opening range.
@@ -229,7 +232,7 @@ class CollisionChecker:
         def joint_adr(name: str) -> int:
             jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
             if jid < 0:
-                raise ValueError(f"world: no joint {name!r} (gripper attached with another name_prefix?)")
+                raise SettingsError(f"world: no joint {name!r} (gripper attached with another name_prefix?)")
             return int(model.jnt_qposadr[jid])
 
         self._free_adr = joint_adr(f"{name_prefix}free")
@@ -240,7 +243,7 @@ class CollisionChecker:
         try:
             gripper_geom_ids(model, prefix=name_prefix)  # the pads must be there
         except KeyError as exc:
-            raise ValueError(f"world: {exc.args[0]}") from None
+            raise SettingsError(f"world: {exc.args[0]}") from None
         # Every geom named with the prefix is the gripper's (the same rule as _restrict_contacts).
         is_gripper = np.array([(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, g) or "").startswith(name_prefix)
                                for g in range(model.ngeom)], dtype=bool)
@@ -284,9 +287,9 @@ class CollisionChecker:
 
     def _target_root(self, name: str) -> int:
         if not isinstance(name, str) or name not in self._body_roots:
-            raise ValueError(f"target_body_name: no body named {name!r} in the world")
+            raise SettingsError(f"target_body_name: no body named {name!r} in the world")
         if name.startswith(self.prefix):
-            raise ValueError(f"target_body_name: {name!r} is part of the gripper")
+            raise SettingsError(f"target_body_name: {name!r} is part of the gripper")
         return self._body_roots[name]
 
     def opening(self, widths) -> np.ndarray:

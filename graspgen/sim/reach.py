@@ -38,7 +38,9 @@ import mujoco
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from graspgen.sim.grippers import GripperSpec, attach_gripper, jaw_opening, linkage_couplings
+from graspgen.grippers import GripperSpec, jaw_opening
+from graspgen.sim.gripper_model import attach_gripper
+from graspgen.sim.gripper_state import linkage_couplings
 from graspgen.validation import check_number, check_positive_int
 
 __all__ = ["ReachParams", "ClearanceBoxes", "clearance_boxes", "reachable", "surface_points"]

@@ -1,11 +1,11 @@
 """Looking at an external grasp's rollout: one grasp of a grasp file (ACRONYM, Parquet poses) rolled out again in the
-world of :func:`graspgen.evaluate.evaluate_grasps`, under its protocol, and filmed.
+world of :func:`graspgen.workflows.evaluate.evaluate_grasps`, under its protocol, and filmed.
 
-:func:`evaluated_rollout_movie` takes an :class:`graspgen.evaluate.EvaluationWorld` (from
-:func:`graspgen.evaluate.evaluation_world`: the same prepared object, opening, support and protocol as ``gen
-evaluate``), rolls grasp ``index`` out in a fresh model of it (so the outcome is the one ``gen evaluate`` gives that
-grasp: a rollout depends only on the model and its inputs, :mod:`graspgen.sim.lift`), records the state at every rule
-check, keeps a few and renders them from the side
+:func:`evaluated_rollout_movie` takes an :class:`graspgen.workflows.evaluation_world.EvaluationWorld` (from
+:func:`graspgen.workflows.evaluation_world.evaluation_world`: the same prepared object, opening, support and protocol as
+``gen evaluate``), rolls grasp ``index`` out in a fresh model of it (so the outcome is the one ``gen evaluate`` gives
+that grasp: a rollout depends only on the model and its inputs, :mod:`graspgen.sim.lift`), records the state at every
+rule check, keeps a few and renders them from the side
 (:func:`graspgen.viz.rollout_movie.side_cameras`) in a second model of the world that also holds the object's visual
 mesh (same joints; the physics model has only the convex parts). :func:`graspgen.viz.rollout_movie.save_movie` writes
 the PNG strip or GIF. ``gen show rollout --grasps FILE --index I`` is the command line for it.
@@ -18,13 +18,13 @@ closing did is thinned as a whole.
 
 from __future__ import annotations
 
+from graspgen.errors import SettingsError
 from graspgen.sim.gl import select_backend
 
 select_backend()  # Rendering needs a headless GL backend; MuJoCo reads MUJOCO_GL when first imported.
 
 from collections.abc import Sequence  # noqa: E402
 
-from graspgen.evaluate import EvaluationWorld  # noqa: E402
 from graspgen.validation import check_int  # noqa: E402
 from graspgen.viz.rollout_movie import (  # noqa: E402
     Frame,
@@ -34,6 +34,7 @@ from graspgen.viz.rollout_movie import (  # noqa: E402
     render_frames,
     side_cameras,
 )
+from graspgen.workflows.evaluation_world import EvaluationWorld  # noqa: E402
 
 __all__ = ["after_closing_frames", "evaluated_rollout_movie"]
 
@@ -55,7 +56,7 @@ def evaluated_rollout_movie(
     Parameters
     ----------
     world : EvaluationWorld
-        The evaluation world with the grasps (:func:`graspgen.evaluate.evaluation_world`).
+        The evaluation world with the grasps (:func:`graspgen.workflows.evaluation_world.evaluation_world`).
     index : int
         The grasp, ``0 <= index < len(world.T_world)``.
     name : str
@@ -81,7 +82,7 @@ def evaluated_rollout_movie(
     n = len(world.T_world)
     index = check_int("index", index, low=0)
     if index >= n:
-        raise ValueError(f"index: {index} is out of range; the grasps are 0..{n - 1}")
+        raise SettingsError(f"index: {index} is out of range; the grasps are 0..{n - 1}")
     T = world.T_world[index]
     body = world.target_body
     result, states = record_rollout(world.simulator(), T, float(world.width[index]), body)

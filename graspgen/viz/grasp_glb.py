@@ -2,7 +2,7 @@
 ``gen show grasps --3d``.
 
 The marker is ACRONYM's "fork" drawn with thin boxes, in the grasp's TCP frame (ARCHITECTURE.md, Conventions: z
-approach, x closing, origin between the pads), sized by the gripper (:func:`graspgen.sim.grippers.load_gripper`):
+approach, x closing, origin between the pads), sized by the gripper (:func:`graspgen.grippers.load_gripper`):
 
 * two fingers of the gripper's finger length (``finger_size[2]``) at the full opening, their inner faces at
   ``x = -+max_width / 2``, their tips flush with the pads' tips (``z = pad_size[2] / 2``), as ACRONYM draws an open
@@ -30,11 +30,12 @@ import numpy as np
 import pyarrow as pa
 import trimesh
 
+from graspgen.errors import SettingsError
+from graspgen.grippers import DEFAULT_GRIPPER, GripperSpec, load_gripper
 from graspgen.io.arrow import column_array
 from graspgen.io.atomic import atomic_path
 from graspgen.io.objects import ObjectRecord
 from graspgen.io.scenes import SceneRecord
-from graspgen.sim.grippers import DEFAULT_GRIPPER, GripperSpec, load_gripper
 from graspgen.validation import check_transforms
 from graspgen.viz.grasp_view import LABELS, choose_grasps, grasp_labels
 
@@ -113,10 +114,10 @@ def _coloured(vertices: Any, faces: Any, colour: Sequence[int], where: str) -> t
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if v.ndim != 2 or v.shape[1:] != (3,) or not np.isfinite(v).all():
-        raise ValueError(f"{where}: vertices must be finite (v, 3), got shape {v.shape}")
+        raise SettingsError(f"{where}: vertices must be finite (v, 3), got shape {v.shape}")
     in_range = len(f) == 0 or (f.min() >= 0 and f.max() < len(v))
     if f.ndim != 2 or f.shape[1:] != (3,) or f.dtype.kind not in "iu" or not in_range:
-        raise ValueError(f"{where}: faces must be (f, 3) integer indices into the {len(v)} vertices")
+        raise SettingsError(f"{where}: faces must be (f, 3) integer indices into the {len(v)} vertices")
     mesh = trimesh.Trimesh(v, f.astype(np.int64), process=False)
     mesh.visual.face_colors = np.asarray(colour, dtype=np.uint8)
     return mesh
@@ -165,21 +166,21 @@ def labelled_grasps_glb(
     T = np.zeros((0, 4, 4)) if n == 0 else check_transforms("T_tcp", T_tcp)
     codes = np.asarray(labels).reshape(-1)
     if len(codes) != n:
-        raise ValueError(f"labels: expected {n} labels (one per pose), got {len(codes)}")
+        raise SettingsError(f"labels: expected {n} labels (one per pose), got {len(codes)}")
     ids = np.arange(n) if grasp_ids is None else np.asarray(grasp_ids).reshape(-1)
     if len(ids) != n or len(set(ids.tolist())) != n:
-        raise ValueError(f"grasp_ids: expected {n} distinct ids (one per pose), got {len(ids)} "
-                         f"({len(set(ids.tolist()))} distinct)")
+        raise SettingsError(f"grasp_ids: expected {n} distinct ids (one per pose), got {len(ids)} "
+                            f"({len(set(ids.tolist()))} distinct)")
     unknown = sorted({int(c) for c in codes} - {int(c) for c in colours})
     if unknown:
-        raise ValueError(f"labels: no colour for label(s) {unknown}; known: {sorted(int(c) for c in colours)}")
+        raise SettingsError(f"labels: no colour for label(s) {unknown}; known: {sorted(int(c) for c in colours)}")
     spec = _spec(gripper)
     scene = trimesh.Scene()
     names: set[str] = set()
 
     def node(name: str, geometry: str, pose: Any) -> None:
         if name in names:
-            raise ValueError(f"objects: the name {name!r} is used twice")
+            raise SettingsError(f"objects: the name {name!r} is used twice")
         names.add(name)
         scene.graph.update(frame_to=name, frame_from=scene.graph.base_frame, geometry=geometry,
                            matrix=np.asarray(pose, dtype=np.float64))
@@ -235,14 +236,14 @@ def grasps_glb(
     """
     flags = np.asarray(success).reshape(-1)
     if flags.dtype != np.bool_ and not (flags.dtype.kind in "iu" and np.isin(flags, (0, 1)).all()):
-        raise ValueError(f"success: must be booleans (or 0/1), got {flags.dtype}")
+        raise SettingsError(f"success: must be booleans (or 0/1), got {flags.dtype}")
     return labelled_grasps_glb([(name, vertices, faces, np.eye(4))], T_tcp, flags.astype(np.int64), PLAIN_LABELS,
                                gripper=gripper, grasp_ids=grasp_ids)
 
 
 def object_set_glb(record: ObjectRecord, grasps: pa.Table, *, n: int | None = None,
                    gripper: GripperSpec | str | None = None) -> bytes:
-    """The GLB of an object's grasp set (a table of :mod:`graspgen.sim.object_grasps`: ``grasp_id``, ``gripper``,
+    """The GLB of an object's grasp set (a table of :mod:`graspgen.workflows.object_grasps`: ``grasp_id``, ``gripper``,
     ``pose_object``, ``success``), at most ``n`` grasps spread evenly over successes and failures
     (:func:`graspgen.viz.grasp_view.choose_grasps`; None: all).
 

@@ -5,8 +5,8 @@ Each grasp is drawn as the classic parallel-jaw "fork" marker, in 3-D and then p
 ``x = -+open_width / 2`` from the pad tips (``z = +pad_length / 2``) back to ``z = -pad_length / 2``, a palm bar
 joins their backs, and a stem of one pad length points back along -z (which way the gripper came from).
 :func:`grasp_marker_segments` gives these segments in the world frame; :func:`segment_pixels` projects them with a scene
-view's :class:`~graspgen.sim.scene_model.Camera` (OpenCV convention, the same as
-:func:`graspgen.sim.scene_model.project`); :func:`draw_grasps` draws them with Pillow on the view's RGB image, upscaled
+view's :class:`~graspgen.sim.camera.Camera` (OpenCV convention, the same as
+:func:`graspgen.sim.camera.project`); :func:`draw_grasps` draws them with Pillow on the view's RGB image, upscaled
 so that markers stay legible on a
 320 x 240 render.
 
@@ -25,10 +25,11 @@ import numpy as np
 import pyarrow as pa
 from PIL import Image, ImageDraw, ImageFont
 
+from graspgen.errors import SettingsError
+from graspgen.grippers import GripperSpec, load_gripper
 from graspgen.io.arrow import column_array
 from graspgen.io.scenes import SceneRecord
-from graspgen.sim.grippers import GripperSpec, load_gripper
-from graspgen.sim.scene_model import Camera, project, transform_points
+from graspgen.sim.camera import Camera, project, transform_points
 
 __all__ = [
     "MARKER_SEGMENTS",
@@ -100,9 +101,9 @@ def grasp_marker_segments(T_world: np.ndarray, open_width: np.ndarray, gripper: 
     T = np.asarray(T_world, dtype=float)
     w = np.asarray(open_width, dtype=float)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
-        raise ValueError(f"T_world: must have shape (n, 4, 4), got {T.shape}")
+        raise SettingsError(f"T_world: must have shape (n, 4, 4), got {T.shape}")
     if w.shape != (len(T),):
-        raise ValueError(f"open_width: must have shape ({len(T)},) like T_world, got {w.shape}")
+        raise SettingsError(f"open_width: must have shape ({len(T)},) like T_world, got {w.shape}")
     half_len = gripper.pad_size[2] / 2.0
     h = w / 2.0
     zero = np.zeros_like(h)
@@ -142,7 +143,7 @@ def segment_pixels(camera: Camera, segments: np.ndarray, scale: float = 1.0) -> 
     """
     seg = np.asarray(segments, dtype=float)
     if seg.shape[-2:] != (2, 3):
-        raise ValueError(f"segments: must have shape (..., 2, 3), got {seg.shape}")
+        raise SettingsError(f"segments: must have shape (..., 2, 3), got {seg.shape}")
     p = transform_points(np.linalg.inv(np.asarray(camera.T_world_camera, dtype=float)), seg)
     a, b = p[..., 0, :], p[..., 1, :]
     za, zb = a[..., 2:3], b[..., 2:3]
@@ -212,18 +213,18 @@ def draw_grasps(
     """
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
-        raise ValueError(f"rgb: must be an (H, W, 3) uint8 image, got {rgb.shape} {rgb.dtype}")
+        raise SettingsError(f"rgb: must be an (H, W, 3) uint8 image, got {rgb.shape} {rgb.dtype}")
     if (camera.width, camera.height) != (rgb.shape[1], rgb.shape[0]):
-        raise ValueError(f"camera: image size {camera.width}x{camera.height} differs from rgb's "
-                         f"{rgb.shape[1]}x{rgb.shape[0]}")
+        raise SettingsError(f"camera: image size {camera.width}x{camera.height} differs from rgb's "
+                            f"{rgb.shape[1]}x{rgb.shape[0]}")
     if not (isinstance(scale, (int, np.integer)) and scale >= 1):
-        raise ValueError(f"scale: must be a positive integer, got {scale!r}")
+        raise SettingsError(f"scale: must be a positive integer, got {scale!r}")
     seg = np.asarray(segments, dtype=float)
     if seg.ndim != 4 or seg.shape[2:] != (2, 3):
-        raise ValueError(f"segments: must have shape (n, s, 2, 3), got {seg.shape}")
+        raise SettingsError(f"segments: must have shape (n, s, 2, 3), got {seg.shape}")
     cols = np.asarray(colours, dtype=int).reshape(-1, 3) if len(seg) else np.zeros((0, 3), dtype=int)
     if len(cols) != len(seg):
-        raise ValueError(f"colours: need one RGB colour per grasp ({len(seg)}), got {len(cols)}")
+        raise SettingsError(f"colours: need one RGB colour per grasp ({len(seg)}), got {len(cols)}")
     width = max(1, scale - 1) if line_width is None else int(line_width)
     h, w = rgb.shape[:2]
     image = Image.fromarray(rgb).resize((w * scale, h * scale), Image.Resampling.NEAREST)
@@ -270,9 +271,9 @@ def grasp_labels(grasps: pa.Table, rollouts: pa.Table | None = None) -> tuple[np
     Parameters
     ----------
     grasps : pyarrow.Table
-        A grasps table (:data:`graspgen.sim.scene_grasps.SCHEMA`).
+        A grasps table (:data:`graspgen.workflows.scene_grasps.SCHEMA`).
     rollouts : pyarrow.Table or None
-        Its rollouts table (:data:`graspgen.sim.rollouts.SCHEMA`), row for row; None labels by the pre-filter.
+        Its rollouts table (:data:`graspgen.workflows.rollouts.SCHEMA`), row for row; None labels by the pre-filter.
 
     Returns
     -------
@@ -283,7 +284,7 @@ def grasp_labels(grasps: pa.Table, rollouts: pa.Table | None = None) -> tuple[np
     if rollouts is None:
         return grasps.column("prefilter_code").to_numpy().astype(np.int64), "prefilter"
     if not rollouts_match(grasps, rollouts):
-        raise ValueError("rollouts: not the rollouts of this grasps table (grasp ids or pre-filter labels differ)")
+        raise SettingsError("rollouts: not the rollouts of this grasps table (grasp ids or pre-filter labels differ)")
     return rollouts.column("outcome").to_numpy().astype(np.int64), "rollouts"
 
 
@@ -310,7 +311,7 @@ def choose_grasps(codes: np.ndarray, n: int, priority: Sequence[int]) -> np.ndar
     """
     codes = np.asarray(codes).astype(np.int64)
     if n < 0:
-        raise ValueError(f"n: must be >= 0, got {n}")
+        raise SettingsError(f"n: must be >= 0, got {n}")
     present = [int(c) for c in priority if np.any(codes == c)]
     present += sorted(int(c) for c in np.unique(codes) if int(c) not in present)
     available = {c: int(np.count_nonzero(codes == c)) for c in present}
@@ -423,9 +424,9 @@ def grasp_picture(
         No images in the shard, ``view`` out of range, ``rollouts`` not matching ``grasps``.
     """
     if scene.rgb is None:
-        raise ValueError(f"{scene.scene_id}: the shard has no RGB images (made with cameras.render: false)")
+        raise SettingsError(f"{scene.scene_id}: the shard has no RGB images (made with cameras.render: false)")
     if not 0 <= view < len(scene.cameras):
-        raise ValueError(f"view: {scene.scene_id} has views 0..{len(scene.cameras) - 1}, got {view}")
+        raise SettingsError(f"view: {scene.scene_id} has views 0..{len(scene.cameras) - 1}, got {view}")
     codes, source = grasp_labels(grasps, rollouts)
     labels: Mapping[int, tuple[str, tuple[int, int, int]]] = LABELS[source]
     priority = list(labels)

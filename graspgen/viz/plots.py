@@ -1,6 +1,6 @@
 """The plots of a dataset card (``plots/*.png``): outcomes, robustness, epsilon, their correlation, examples.
 
-:func:`draw_plots` draws them with matplotlib (Agg) from the card statistics (:func:`graspgen.io.card.card_stats`)
+:func:`draw_plots` draws them with matplotlib (Agg) from the card statistics (:func:`graspgen.io.card_stats.card_stats`)
 and the table they were computed from; the bytes depend on the data and the matplotlib version only (no date, no
 software tag; the scatter jitter is seeded). The examples contact sheet draws grasps on the first view of the first
 scenes (:func:`graspgen.viz.grasp_view.grasp_picture`).
@@ -18,7 +18,8 @@ import numpy as np
 import pyarrow as pa
 
 from graspgen.io.atomic import atomic_path
-from graspgen.io.card import CardSettings, fmt
+from graspgen.io.card_render import fmt
+from graspgen.io.card_stats import CardSettings
 from graspgen.io.dataset_table import float_values
 
 __all__ = ["OUTCOME_COLOURS", "PLOT_FILES", "draw_plots"]
@@ -54,19 +55,37 @@ def _bars(ax: Any, summary: Mapping[str, Any], colour: str) -> None:
 
 
 def draw_plots(root: Path, table: pa.Table, stats: Mapping[str, Any], settings: CardSettings) -> list[str]:
-    """Write the card's PNGs in ``root/plots``; returns their paths relative to ``root``."""
+    """Write the card's PNGs in ``root/plots``; returns their paths relative to ``root``.
+
+    Parameters
+    ----------
+    root : Path
+        The dataset folder (its scenes are read for the examples).
+    table : pyarrow.Table or CardTable
+        The card's columns of grasps.parquet (:class:`graspgen.io.card_tally.CardTable`).
+    stats : mapping
+        :func:`graspgen.io.card_stats.card_stats` of the folder.
+    settings : CardSettings
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     plt.rcParams.update({"font.size": 9, "svg.hashsalt": "graspgen", "figure.max_open_warning": 0})
-    written = []
+    written = [_outcomes_plot(plt, root, stats)]
+    for drawn in (_robustness_plot(plt, root, stats), _epsilon_plot(plt, root, table, stats, settings),
+                  _correlation_plot(plt, root, table, stats), _examples_plot(root, table, settings)):
+        if drawn is not None:
+            written.append(drawn)
+    return written
+
+
+def _outcomes_plot(plt: Any, root: Path, stats: Mapping[str, Any]) -> str:
+    """Outcomes: overall bars and each object's mix."""
     names = [o["name"] for o in stats["outcomes"]]
     counts = [o["grasps"] for o in stats["outcomes"]]
     objects = [k for k, v in stats["objects"].items() if v["grasps"]]
-
-    # Outcomes: overall bars and each object's mix.
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, max(3.5, 0.3 * len(objects) + 1.5)), width_ratios=[1, 1.3])
     a.bar(range(len(names)), counts, color=OUTCOME_COLOURS, edgecolor="black", linewidth=0.5)
     for i, n in enumerate(counts):
@@ -87,73 +106,90 @@ def draw_plots(root: Path, table: pa.Table, stats: Mapping[str, Any], settings: 
     b.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=3, fontsize=7, frameon=False)
     fig.tight_layout()
     _save(fig, root / "plots" / "outcomes.png")
-    written.append("plots/outcomes.png")
+    return "plots/outcomes.png"
 
+
+def _robustness_plot(plt: Any, root: Path, stats: Mapping[str, Any]) -> str | None:
+    """Histograms of robustness and pfc over the successful grasps (None: neither label is there)."""
     labels = stats["labels"]
-    if labels.get("robustness", {}).get("n") or labels.get("pfc", {}).get("n"):
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-        for ax, col, colour in zip(axes, ("robustness", "pfc"), ("#28c83c", "#3c78d8")):
-            s = labels.get(col, {})
-            if s.get("n"):
-                _bars(ax, s, colour)
-                ax.set_title(f"{col} of {s['n']} successful grasps (mean {s['mean']:.2f})")
-            else:
-                ax.set_title(f"no {col} labels")
-            ax.set_xlim(-0.05, 1.05)
-            ax.set_xlabel(col)
-        fig.tight_layout()
-        _save(fig, root / "plots" / "robustness.png")
-        written.append("plots/robustness.png")
+    if not (labels.get("robustness", {}).get("n") or labels.get("pfc", {}).get("n")):
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for ax, col, colour in zip(axes, ("robustness", "pfc"), ("#28c83c", "#3c78d8")):
+        s = labels.get(col, {})
+        if s.get("n"):
+            _bars(ax, s, colour)
+            ax.set_title(f"{col} of {s['n']} successful grasps (mean {s['mean']:.2f})")
+        else:
+            ax.set_title(f"no {col} labels")
+        ax.set_xlim(-0.05, 1.05)
+        ax.set_xlabel(col)
+    fig.tight_layout()
+    _save(fig, root / "plots" / "robustness.png")
+    return "plots/robustness.png"
 
-    if labels.get("epsilon", {}).get("n"):
-        eps = float_values(table.column("epsilon"))
-        outcome = table.column("outcome").to_numpy()
-        fig, ax = plt.subplots(figsize=(8, 3.6))
-        finite = np.isfinite(eps)
-        hi = float(eps[finite].max()) if finite.any() else 1.0
-        edges = np.linspace(0.0, hi if hi > 0 else 1.0, settings.histogram_bins + 1)
-        groups = [("success (5)", outcome == 5, "#28c83c"), ("slipped / no contact (3, 4)",
-                  (outcome == 3) | (outcome == 4), "#ff8c00"), ("collision (0-2)", outcome <= 2, "#eb1e1e")]
-        ax.hist([eps[g & finite] for _, g, _ in groups], bins=edges, stacked=True,
-                color=[c for _, _, c in groups], label=[n for n, _, _ in groups], edgecolor="black", linewidth=0.3)
-        zero = int(((eps == 0) & finite).sum())
-        ax.set_xlabel("Ferrari-Canny epsilon (unit-free)")
-        ax.set_ylabel("grasps")
-        ax.set_title(f"epsilon of {int(finite.sum())} grasps by outcome ({zero} not in force closure: epsilon 0)")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        _save(fig, root / "plots" / "epsilon.png")
-        written.append("plots/epsilon.png")
 
-    if "robustness" in table.column_names and "epsilon" in table.column_names:
-        r, e = float_values(table.column("robustness")), float_values(table.column("epsilon"))
-        p = float_values(table.column("pfc")) if "pfc" in table.column_names else np.full(len(r), np.nan)
-        ok = np.isfinite(r) & np.isfinite(e)
-        if ok.sum() >= 2:
-            fig, ax = plt.subplots(figsize=(6.5, 4.5))
-            jitter = (np.random.default_rng(0).random(int(ok.sum())) - 0.5) * 0.02  # seeded: bytes stay fixed
-            colour = np.where(np.isfinite(p[ok]), p[ok], 0.0)
-            sc = ax.scatter(e[ok], r[ok] + jitter, c=colour, cmap="viridis", vmin=0, vmax=1, s=14,
-                            edgecolors="black", linewidths=0.2)
-            fig.colorbar(sc, ax=ax, label="pfc")
-            corr = stats["correlation"]
-            i, j = corr["columns"].index("robustness"), corr["columns"].index("epsilon")
-            rho = corr["spearman"][i][j]
-            ax.set_xlabel("epsilon")
-            ax.set_ylabel("robustness (jittered)")
-            ax.set_title(f"robustness vs epsilon, {int(ok.sum())} successful grasps (Spearman {fmt(rho, 2)})")
-            fig.tight_layout()
-            _save(fig, root / "plots" / "correlation.png")
-            written.append("plots/correlation.png")
+def _epsilon_plot(plt: Any, root: Path, table: pa.Table, stats: Mapping[str, Any],
+                  settings: CardSettings) -> str | None:
+    """Stacked histogram of epsilon by outcome (None: no epsilon labels)."""
+    if not stats["labels"].get("epsilon", {}).get("n"):
+        return None
+    eps = float_values(table.column("epsilon"))
+    outcome = table.column("outcome").to_numpy()
+    fig, ax = plt.subplots(figsize=(8, 3.6))
+    finite = np.isfinite(eps)
+    hi = float(eps[finite].max()) if finite.any() else 1.0
+    edges = np.linspace(0.0, hi if hi > 0 else 1.0, settings.histogram_bins + 1)
+    groups = [("success (5)", outcome == 5, "#28c83c"), ("slipped / no contact (3, 4)",
+              (outcome == 3) | (outcome == 4), "#ff8c00"), ("collision (0-2)", outcome <= 2, "#eb1e1e")]
+    ax.hist([eps[g & finite] for _, g, _ in groups], bins=edges, stacked=True,
+            color=[c for _, _, c in groups], label=[n for n, _, _ in groups], edgecolor="black", linewidth=0.3)
+    zero = int(((eps == 0) & finite).sum())
+    ax.set_xlabel("Ferrari-Canny epsilon (unit-free)")
+    ax.set_ylabel("grasps")
+    ax.set_title(f"epsilon of {int(finite.sum())} grasps by outcome ({zero} not in force closure: epsilon 0)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, root / "plots" / "epsilon.png")
+    return "plots/epsilon.png"
 
+
+def _correlation_plot(plt: Any, root: Path, table: pa.Table, stats: Mapping[str, Any]) -> str | None:
+    """Robustness against epsilon, coloured by pfc (None: fewer than two grasps have both)."""
+    if not ("robustness" in table.column_names and "epsilon" in table.column_names):
+        return None
+    r, e = float_values(table.column("robustness")), float_values(table.column("epsilon"))
+    p = float_values(table.column("pfc")) if "pfc" in table.column_names else np.full(len(r), np.nan)
+    ok = np.isfinite(r) & np.isfinite(e)
+    if ok.sum() < 2:
+        return None
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    jitter = (np.random.default_rng(0).random(int(ok.sum())) - 0.5) * 0.02  # seeded: bytes stay fixed
+    colour = np.where(np.isfinite(p[ok]), p[ok], 0.0)
+    sc = ax.scatter(e[ok], r[ok] + jitter, c=colour, cmap="viridis", vmin=0, vmax=1, s=14,
+                    edgecolors="black", linewidths=0.2)
+    fig.colorbar(sc, ax=ax, label="pfc")
+    corr = stats["correlation"]
+    i, j = corr["columns"].index("robustness"), corr["columns"].index("epsilon")
+    rho = corr["spearman"][i][j]
+    ax.set_xlabel("epsilon")
+    ax.set_ylabel("robustness (jittered)")
+    ax.set_title(f"robustness vs epsilon, {int(ok.sum())} successful grasps (Spearman {fmt(rho, 2)})")
+    fig.tight_layout()
+    _save(fig, root / "plots" / "correlation.png")
+    return "plots/correlation.png"
+
+
+def _examples_plot(root: Path, table: pa.Table, settings: CardSettings) -> str | None:
+    """The examples contact sheet as ``plots/examples.png`` (None: no scene with images, or none asked for)."""
     sheet = _examples_sheet(root, table, settings)
-    if sheet is not None:
-        buf = io.BytesIO()
-        sheet.save(buf, format="PNG", optimize=False)
-        with atomic_path(root / "plots" / "examples.png") as tmp:
-            tmp.write_bytes(buf.getvalue())
-        written.append("plots/examples.png")
-    return written
+    if sheet is None:
+        return None
+    buf = io.BytesIO()
+    sheet.save(buf, format="PNG", optimize=False)
+    with atomic_path(root / "plots" / "examples.png") as tmp:
+        tmp.write_bytes(buf.getvalue())
+    return "plots/examples.png"
 
 
 def _examples_sheet(root: Path, table: pa.Table, settings: CardSettings) -> Any:

@@ -1,9 +1,9 @@
 """Looking at rollouts: re-run one grasp of a scene and render frames of it, to see why it failed.
 
 :func:`rollout_movie` re-runs a grasp exactly as the rollouts stage did (the same compiled scene from
-:func:`graspgen.sim.rollouts.scene_simulator`, the same :class:`graspgen.sim.lift.LiftParams`), records the state at
-every rule check through the simulator's ``observer`` hook, keeps a few of those states (:func:`pick_frames`: the start,
-the end of every phase reached, then evenly spaced ones) and renders them from a side camera
+:func:`graspgen.workflows.rollouts.scene_simulator`, the same :class:`graspgen.sim.protocols.LiftParams`), records the
+state at every rule check through the simulator's ``observer`` hook, keeps a few of those states (:func:`pick_frames`:
+the start, the end of every phase reached, then evenly spaced ones) and renders them from a side camera
 (:func:`side_cameras`) with MuJoCo's renderer. :func:`save_movie` writes a PNG strip or an animated GIF with the
 outcome in the title. ``gen show rollout SCENE_ID GRASP_ID -o file.png|gif`` is the command line for it.
 
@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from graspgen.errors import SettingsError
 from graspgen.sim.gl import select_backend
 
 select_backend()  # Rendering needs a headless GL backend; MuJoCo reads MUJOCO_GL when first imported.
@@ -29,19 +30,16 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 
+from graspgen.grippers import load_gripper  # noqa: E402
 from graspgen.io.arrow import column_array  # noqa: E402
-from graspgen.sim.grippers import attach_gripper, load_gripper  # noqa: E402
-from graspgen.sim.lift import LiftParams, LiftSimulator, RolloutResult  # noqa: E402
-from graspgen.sim.rollouts import scene_simulator  # noqa: E402
-from graspgen.sim.scene_grasps import PREFILTER_NAMES  # noqa: E402
-from graspgen.sim.scene_model import (  # noqa: E402
-    Camera,
-    SceneRenderer,
-    camera_on_sphere,
-    intrinsics_from_fov,
-    object_body_name,
-)
-from graspgen.sim.scenes import scene_spec  # noqa: E402
+from graspgen.sim.camera import Camera, camera_on_sphere, intrinsics_from_fov  # noqa: E402
+from graspgen.sim.gripper_model import attach_gripper  # noqa: E402
+from graspgen.sim.lift import LiftSimulator  # noqa: E402
+from graspgen.sim.protocols import LiftParams, RolloutResult  # noqa: E402
+from graspgen.sim.render import SceneRenderer  # noqa: E402
+from graspgen.sim.scene_model import object_body_name, scene_spec  # noqa: E402
+from graspgen.workflows.rollouts import scene_simulator  # noqa: E402
+from graspgen.workflows.scene_grasps import PREFILTER_NAMES  # noqa: E402
 
 __all__ = [
     "Frame",
@@ -67,7 +65,7 @@ class Frame:
     """The simulation state at one rule check of a rollout."""
 
     phase: str
-    """Protocol phase (:data:`graspgen.sim.lift.PHASES`) the state was recorded in."""
+    """Protocol phase (:data:`graspgen.sim.protocols.PHASES`) the state was recorded in."""
     step: int
     """Steps simulated so far in the rollout."""
     time: float
@@ -116,7 +114,7 @@ def pick_frames(frames: Sequence[Frame], n: int) -> list[Frame]:
     evenly. The result has ``min(n, len(frames))`` frames.
     """
     if n < 1:
-        raise ValueError(f"n: must be >= 1, got {n}")
+        raise SettingsError(f"n: must be >= 1, got {n}")
     count = len(frames)
     if count <= n:
         return list(frames)
@@ -178,7 +176,7 @@ def render_frames(model: mujoco.MjModel, frames: Sequence[Frame], camera: Camera
     with SceneRenderer(model, camera.width, camera.height) as renderer:
         for frame in frames:
             if frame.qpos.shape != (model.nq,):
-                raise ValueError(f"frames: qpos has {frame.qpos.shape[0]} entries, the model {model.nq}")
+                raise SettingsError(f"frames: qpos has {frame.qpos.shape[0]} entries, the model {model.nq}")
             data.qpos[:] = frame.qpos
             mujoco.mj_forward(model, data)
             images.append(renderer.render(data, camera, rgb=True).rgb)
@@ -221,7 +219,7 @@ def rollout_movie(
     rows = np.flatnonzero(ids == grasp_id)
     if len(rows) == 0:
         hint = f"0..{len(ids) - 1}" if len(ids) else "none"
-        raise ValueError(f"grasp_id: the scene has no grasp {grasp_id} (its grasp ids: {hint})")
+        raise SettingsError(f"grasp_id: the scene has no grasp {grasp_id} (its grasp ids: {hint})")
     row = int(rows[0])
     gripper = grasps.column("gripper")[row].as_py()
     scene, simulator = scene_simulator(Path(scene_path), load_object, gripper, lift)
@@ -295,9 +293,9 @@ def save_movie(movie: RolloutMovie, path: str | Path, *, frame_ms: int = 600) ->
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".png", ".gif"):
-        raise ValueError(f"{path}: unsupported image type {path.suffix or '(none)'!r}; use .png or .gif")
+        raise SettingsError(f"{path}: unsupported image type {path.suffix or '(none)'!r}; use .png or .gif")
     if not movie.images:
-        raise ValueError("movie: no frames to save")
+        raise SettingsError("movie: no frames to save")
     path.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".gif":
         frames = [_composite(img, lab, movie.title) for img, lab in zip(movie.images, movie.labels)]

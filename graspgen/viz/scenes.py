@@ -8,12 +8,9 @@ from collections.abc import Sequence
 import numpy as np  # noqa: E402
 
 import graspgen.sim.gl  # noqa: F401 - imported first: chooses MUJOCO_GL before anything imports mujoco
+from graspgen.errors import InputError, SettingsError  # noqa: E402
 from graspgen.io.scenes import SceneRecord  # noqa: E402
-from graspgen.sim.scene_model import (
-    SEG_BACKGROUND,
-    SEG_GROUND,
-    SEG_SUPPORT,
-)
+from graspgen.sim.scene_model import SEG_BACKGROUND, SEG_GROUND, SEG_SUPPORT  # noqa: E402
 
 _RAMP = np.array([[253, 231, 37], [94, 201, 98], [33, 145, 140], [59, 82, 139], [68, 1, 84]], dtype=float)
 """Depth colour ramp, near to far (viridis anchors, reversed so near is bright)."""
@@ -63,12 +60,12 @@ def contact_sheet(scene: SceneRecord, views: Sequence[int] | None = None):
     from PIL import Image, ImageDraw
 
     if scene.rgb is None or scene.depth is None or scene.segmentation is None:
-        raise ValueError(f"{scene.scene_id}: the shard has no images (made with cameras.render: false or no views)")
+        raise InputError(f"{scene.scene_id}: the shard has no images (made with cameras.render: false or no views)")
     n_views = len(scene.cameras)
     views = list(range(n_views)) if views is None else list(views)
     for k in views:
         if not 0 <= k < n_views:
-            raise ValueError(f"view: {scene.scene_id} has views 0..{n_views - 1}, got {k}")
+            raise SettingsError(f"view: {scene.scene_id} has views 0..{n_views - 1}, got {k}")
     h, w = scene.depth.shape[1:]
     label_h, pad = 16, 4
     sheet = Image.new("RGB", (3 * w + 4 * pad, len(views) * (h + label_h + pad) + pad), (255, 255, 255))

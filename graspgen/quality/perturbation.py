@@ -1,0 +1,189 @@
+"""The perturbation model of the robustness labels: what a perturbed copy of a grasp changes, and how.
+
+* the TCP pose ``T`` (world) becomes ``T @ [R(w) | t]`` (:func:`perturbed_poses`): a translation
+  ``t ~ N(0, translation_sigma^2 I)`` (m) and a rotation by the rotation vector ``w ~ N(0, rotation_sigma^2 I)``
+  (rad), both in the TCP frame (x closing, z approach), the rotation about the TCP origin. The width (and so the
+  opening) stays the nominal one: the controller does not know the error;
+* with ``object_noise``, the target object is also moved at placement by a planar error
+  (:func:`planar_object_noise`): ``N(0, object_translation_sigma^2)`` along world x and y and a yaw
+  ``N(0, object_rotation_sigma^2)`` about the vertical line through its centre of mass. Planar, so the object still
+  rests on its support in the same stable pose;
+* the target's physics: its mass (and inertia) scaled by ``exp(mass_sigma z)`` (log-normal, median 1), its centre
+  of mass moved by ``N(0, com_sigma^2 I)`` (m, mesh frame) and then held over the object's support
+  (:func:`graspgen.quality.resting.resting_com_offset`), and its sliding friction coefficient drawn from
+  ``N(mu, friction_sigma^2)`` truncated to ``> 0`` (:func:`truncated_friction`, one draw, by inverse CDF).
+
+Randomness: every copy takes :data:`DRAWS_PER_COPY` standard normals in a fixed order, each drawn whether used or
+not, so a copy's perturbation depends only on its row of draws. Pure numpy; the rollouts of the copies are in
+:mod:`graspgen.workflows.robustness`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from statistics import NormalDist
+
+import numpy as np
+
+from graspgen.errors import SettingsError
+from graspgen.validation import check_bool, check_int, check_number, check_positive_int, check_transform
+
+__all__ = [
+    "DRAWS_PER_COPY",
+    "RobustnessParams",
+    "perturbed_poses",
+    "planar_object_noise",
+    "rotvec_to_matrix",
+    "truncated_friction",
+]
+
+DRAWS_PER_COPY = 14
+"""Standard normals drawn per perturbed copy, in this order: TCP translation (3), TCP rotation vector (3), object
+x, y, yaw (3), mass scale (1), centre-of-mass offset (3), friction (1). All are drawn whatever the settings."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RobustnessParams:
+    """Settings of the ``robustness`` stage (config section ``robustness``).
+
+    The rollout protocol is the rollouts stage's (``rollouts.lift``) and the epsilon of the copies follows
+    ``metrics.epsilon``: both enter this stage's key."""
+
+    num_perturbations: int = 20
+    """Perturbed copies rolled out per successful grasp."""
+    translation_sigma: float = 0.005
+    """Standard deviation (m) of the TCP translation error along each TCP axis. Compare it with the jaws' clearance,
+    ``rollouts.lift.width_margin / 2`` per side (10 mm by default; less for widths near the stroke): a copy offset
+    by more than that along the closing axis lands a finger on the target at placement (code 1) or pushes it during
+    the approach (code 1 beyond ``rollouts.lift.max_target_shift``)."""
+    rotation_sigma: float = math.radians(5.0)
+    """Standard deviation (rad) of each component of the TCP rotation error (a rotation vector in the TCP frame)."""
+    object_noise: bool = False
+    """Also move the target object at placement (planar: world x, y and yaw about its centre of mass). Off by
+    default: what a grasp feels is the hand's pose relative to the object, and the TCP error already perturbs it in
+    all six dimensions (a planar object error is, to the hand, a TCP error in x, y and yaw); turning this on adds
+    that error a second time and mostly moves the object into its neighbours (codes 1-2, left out of
+    ``grip_robustness`` anyway). Turn it on to model a perception error of the object's position among clutter."""
+    object_translation_sigma: float = 0.005
+    """Standard deviation (m) of the object's x and y error (with ``object_noise``)."""
+    object_rotation_sigma: float = math.radians(5.0)
+    """Standard deviation (rad) of the object's yaw error (with ``object_noise``)."""
+    mass_sigma: float = 0.2
+    """Standard deviation of the log of the target's mass scale (dimensionless): the copy's mass and inertia are the
+    nominal ones times ``exp(mass_sigma z)``, so 0.2 is about +-20% at one sigma, median 1. Physical argument: the
+    record's mass is the mesh volume times an assumed density (or a catalogue mass), and the density of household
+    objects of one kind spreads by tens of percent (a full or half-empty bottle, wood versus plastic). Dex-Net 2.0
+    perturbs no mass (its metric is quasi-static); 0 turns it off."""
+    com_sigma: float = 0.005
+    """Standard deviation (m) of the target's centre-of-mass offset along each mesh axis. The record's centre of
+    mass assumes uniform density; contents (liquid, a battery) move it by millimetres to a centimetre on
+    hand-sized objects, so about 5 mm is the physical size of the error (Dex-Net's object random variable has such
+    a term, ``sigma_obj_com`` in ``dexnet/grasping/random_variables.py``). The copy's object stays in its observed
+    resting pose, so the offset is made consistent with it (:func:`graspgen.quality.resting.resting_com_offset`): its
+    horizontal part is pulled back inside the support polygon (a cylinder on its side keeps only the shift along its
+    axis and the vertical). Without that a shifted centre sets the object moving on its own (a cylinder on its side
+    rolls) and the rules label the copy 1 although the hand never touched it (measured on ``configs/smoke.yaml`` at
+    5 mm before the projection: the cylinder's copies went from 1-4 to 16 of 20 code 1). 0 turns it off."""
+    friction_sigma: float = 0.1
+    """Standard deviation of the target's sliding friction coefficient (dimensionless, absolute), truncated to
+    ``> 0``: the copy's coefficient is drawn from ``N(mu, friction_sigma^2)`` restricted to ``(0, inf)``. 0.1 is
+    Dex-Net's friction uncertainty (coefficient ~ N(0.5, 0.1^2) in Dex-Net 1.0 / 2.0's robust metrics, Mahler et al.
+    2016, 2017), and about the spread of measured coefficients of one material pair."""
+    epsilon_delta: float = 0.0
+    """``pfc`` counts copies with epsilon > this (0: the probability of force closure itself)."""
+    radius: bool = False
+    """Also bisect the robustness radius along each TCP axis (12 bisections per grasp: costly)."""
+    radius_max_translation: float = 0.02
+    """Largest translation (m) the radius search tries."""
+    radius_max_rotation: float = 0.5
+    """Largest rotation (rad) the radius search tries."""
+    radius_iterations: int = 5
+    """Halvings per bisection (resolution: the maximum / 2^iterations)."""
+
+    def __post_init__(self) -> None:
+        check_positive_int("num_perturbations", self.num_perturbations)
+        for name in ("translation_sigma", "rotation_sigma", "object_translation_sigma", "object_rotation_sigma",
+                     "com_sigma", "friction_sigma", "epsilon_delta"):
+            check_number(name, getattr(self, name), low=0.0)
+        # a log scale: exp(2) = 7.4 at one sigma is already no longer the same object
+        check_number("mass_sigma", self.mass_sigma, low=0.0, high=2.0)
+        check_bool("object_noise", self.object_noise)
+        check_bool("radius", self.radius)
+        check_number("radius_max_translation", self.radius_max_translation, low=0.0, low_open=True)
+        check_number("radius_max_rotation", self.radius_max_rotation, low=0.0, low_open=True, high=math.pi)
+        check_int("radius_iterations", self.radius_iterations, low=1, high=30)
+
+
+def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrices of rotation vectors (axis times angle, rad): ``(n, 3) -> (n, 3, 3)`` (Rodrigues)."""
+    v = np.asarray(rotvec, dtype=np.float64).reshape(-1, 3)
+    theta2 = np.einsum("ij,ij->i", v, v)
+    theta = np.sqrt(theta2)
+    small = theta < 1e-6
+    safe = np.where(small, 1.0, theta)
+    # sin(t)/t and (1 - cos t)/t^2, with their Taylor series near 0 (where the closed forms lose precision).
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    K = np.zeros((len(v), 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    return np.eye(3) + a[:, None, None] * K + b[:, None, None] * (K @ K)
+
+
+def perturbed_poses(T: np.ndarray, translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """``T @ [R(rotation_i) | translation_i]`` for each row: poses perturbed in their own (TCP) frame.
+
+    Parameters
+    ----------
+    T : (4, 4) float
+        The nominal pose (e.g. TCP to world).
+    translation : (n, 3) float, m
+        Offsets of the origin, along T's own axes.
+    rotation : (n, 3) float, rad
+        Rotation vectors in T's own frame (the rotation is about T's origin, applied before the offset moves it).
+
+    Returns
+    -------
+    (n, 4, 4) float
+    """
+    T = check_transform("T", T)
+    t = np.asarray(translation, dtype=np.float64).reshape(-1, 3)
+    w = np.asarray(rotation, dtype=np.float64).reshape(-1, 3)
+    if len(t) != len(w):
+        raise SettingsError(f"rotation: expected {len(t)} rows (as translation), got {len(w)}")
+    D = np.zeros((len(t), 4, 4))
+    D[:, :3, :3] = rotvec_to_matrix(w)
+    D[:, :3, 3] = t
+    D[:, 3, 3] = 1.0
+    return T @ D
+
+
+def planar_object_noise(T_world_object: np.ndarray, center_of_mass: np.ndarray, dx: float, dy: float,
+                        yaw: float) -> np.ndarray:
+    """The object pose ``T_world_object (4, 4)`` turned by ``yaw`` (rad) about the vertical line through its centre
+    of mass (``center_of_mass (3,)``, mesh frame, m) and shifted by ``(dx, dy)`` m in the world x/y plane."""
+    T = np.asarray(T_world_object, dtype=np.float64)
+    c, s = math.cos(yaw), math.sin(yaw)
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    com_world = T[:3, :3] @ center_of_mass + T[:3, 3]
+    out = np.eye(4)
+    out[:3, :3] = Rz @ T[:3, :3]
+    out[:3, 3] = Rz @ (T[:3, 3] - com_world) + com_world + (dx, dy, 0.0)
+    return out
+
+
+_NORMAL = NormalDist()
+
+
+def truncated_friction(mu: float, sigma: float, z: float) -> float:
+    """A friction coefficient from ``N(mu, sigma^2)`` truncated to ``> 0``, by inverse CDF of one standard normal
+    ``z`` (so one draw per copy, whatever the truncation): ``mu + sigma Phi^-1(a + Phi(z) (1 - a))`` with
+    ``a = Phi(-mu / sigma)``. ``sigma = 0`` gives ``mu``."""
+    if sigma == 0.0:
+        return float(mu)
+    a = _NORMAL.cdf(-mu / sigma)
+    u = a + _NORMAL.cdf(float(z)) * (1.0 - a)
+    u = min(max(u, 1e-15), 1.0 - 1e-15)
+    # Round-off can leave the value at or just below 0 when the draw sits at the truncation point.
+    return max(mu + sigma * _NORMAL.inv_cdf(u), 1e-6 * mu)

@@ -1,0 +1,177 @@
+"""Settings of an object-centric grasp set (:func:`graspgen.workflows.object_grasps.label_object_grasps`, config
+section ``object_grasps``) and what they mean for a gripper: the near misses' default overhang and tilt, the
+protocol's opening."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from graspgen.geometry.antipodal import AntipodalParams
+from graspgen.grippers import ACRONYM_GRIPPER, GripperSpec, load_gripper
+from graspgen.quality.epsilon import EpsilonParams
+from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
+from graspgen.validation import check, check_choice, check_instance, check_int, check_number
+
+__all__ = ["LABELS", "PROTOCOLS", "ObjectGraspsParams", "default_overhang", "default_tilt", "protocol_opening"]
+
+PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen")
+"""The protocols an object-centric set may use: the free-space ones of :data:`graspgen.sim.protocols.PROTOCOLS`."""
+
+LABELS: tuple[str, ...] = ("held", "firm")
+"""Values of :attr:`ObjectGraspsParams.label`: which label makes a positive."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectGraspsParams:
+    """Settings of an object-centric grasp set (config section ``object_grasps``;
+    :mod:`graspgen.workflows.object_grasps`)."""
+
+    gripper: str = ACRONYM_GRIPPER
+    """Gripper model: robotiq_2f85, panda or box_jaw, or the path of a gripper file (.yaml, .yml, .json). The Panda
+    is ACRONYM's and GraspGen's gripper."""
+    protocol: str = "acronym"
+    """Free-space protocol of the rollouts: ``acronym`` (placed open at the grasp, close, shake; ACRONYM's test) or
+    ``graspgen`` (close, then five tugs at the object's weight; GraspDataGen's test). It sets ``lift.protocol``."""
+    target_positives: int = 1000
+    """Successes to keep per object (the first ones in trial order)."""
+    target_negatives: int = 1000
+    """Failures (any outcome but success) to keep per object (the first ones in trial order)."""
+    max_candidates: int = 20000
+    """Most rollouts per object; the loop stops here even when a target is not met (a warning says so)."""
+    collision_share: float = 0.25
+    """Largest share of the kept negatives that may be collisions at placement (outcomes 0-2: the open hand
+    intersects the object where the grasp puts it). Those are the cheapest negatives and the least informative: the
+    hand never closed, and a plain collision check finds them without physics. Without a cap they fill the negatives
+    of hollow and long objects (93 % of the antipodal candidates on the calibration mug collide), leaving none of
+    the failures that teach a grasp model what does not hold (slips, closing on air). In [0, 1]; 1 keeps failures
+    as they come."""
+    batch_size: int = 128
+    """Candidates sampled per batch (antipodal plus near misses, in a shuffled order)."""
+    near_miss_fraction: float = 0.3
+    """Share of each batch that are near misses (``round(fraction * batch_size)``), in [0, 1)."""
+    near_miss_fraction_when_positives_met: float = 0.8
+    """Share of each batch that are near misses once ``target_positives`` successes are kept (and some antipodal
+    candidate has held), in [0, 1). From then on only failures are kept, and they are where the near misses are:
+    on the calibration mug 12 % of near misses fail without a collision against 0.2 % of antipodal candidates, so a
+    batch of mostly near misses finds the negatives ~10x sooner instead of rolling out successes that are thrown
+    away (each a full closing and shake)."""
+    near_miss_overhang: float | None = None
+    """Shifted near misses: how far (m) beyond the edge of the pad face the parent's contact point ends up, along
+    the shift (the shift is the distance from the contact to the pad's edge in a random in-plane direction plus
+    this); null: half the pad face's width, ``pad_size[1] / 2`` (Panda 8.7 mm)."""
+    near_miss_tilt: float | None = None
+    """Tilted near misses: the tilt (rad, in (0, pi/2]) of the hand about the TCP, about a random axis
+    perpendicular to the approach; null: ``atan(max_width / (2 finger_length))`` of the gripper (Panda 0.640 rad),
+    the smallest tilt that swings an open finger's base past the grasp's centre line."""
+    sampler: AntipodalParams = dataclasses.field(default_factory=lambda: AntipodalParams(approach="any"))
+    """Antipodal sampling on the object's mesh (surface points, friction cone, orientations, depths). Its
+    ``approach`` is always ``any`` here: approach axes over the whole sphere, in the object frame."""
+    lift: LiftParams = dataclasses.field(default_factory=lambda: LiftParams(protocol="acronym"))
+    """The rollout's protocol settings (``lift.acronym``, ``lift.graspgen``, physics); ``lift.protocol`` is set
+    from ``protocol``."""
+    friction: float = 1.0
+    """Sliding friction coefficient (dimensionless) of an object whose record carries none (``attrs["friction"]``);
+    1.0 is ACRONYM's coefficient for every object."""
+    num_perturbations: int = 0
+    """Robustness: copies of each kept success rolled out with the gripper pose perturbed at the grasp; 0 = off."""
+    perturbation_translation: float = 0.005
+    """Robustness: standard deviation (m) of the TCP translation error along each TCP axis (the robustness
+    stage's 5 mm)."""
+    perturbation_rotation: float = math.radians(5.0)
+    """Robustness: standard deviation (rad) of each component of the TCP rotation error (a rotation vector in the
+    TCP frame; the robustness stage's 5 degrees)."""
+    epsilon: EpsilonParams = dataclasses.field(default_factory=EpsilonParams)
+    """Contact model and friction of the epsilon (``epsilon.friction`` null: the object's friction)."""
+    label: str = "held"
+    """Which label makes a positive (a kept success, a near miss's parent, a robustness copy's win): ``held``
+    (default; outcome 5, the object still between the fingers after the disturbance: ACRONYM's
+    ``object_in_gripper``, so the set's positives are ACRONYM's and the ACRONYM export's ``object_in_gripper`` is
+    this) or ``firm`` (also the object's motion in the hand within ``lift.firm_translation`` / ``firm_rotation``;
+    a held-but-not-firm grasp is then kept as a negative). The other label is stored in every row either way
+    (``success``, ``firm``)."""
+
+    def __post_init__(self) -> None:
+        check("gripper", isinstance(self.gripper, str) and bool(self.gripper),
+              "be a gripper name or the path of a gripper file", self.gripper)
+        load_gripper(self.gripper)  # unknown name: lists the bundled ones; bad file: names it and what is wrong
+        check("protocol", self.protocol in PROTOCOLS,
+              f"be one of {', '.join(PROTOCOLS)} (the free-space protocols; 'table' needs a support)", self.protocol)
+        for key in ("target_positives", "target_negatives"):
+            object.__setattr__(self, key, check_int(key, getattr(self, key), low=0))
+        check("target_negatives", self.target_positives + self.target_negatives > 0,
+              "be > 0 when target_positives is 0 (nothing to keep)", self.target_negatives)
+        object.__setattr__(self, "collision_share", check_number("collision_share", self.collision_share,
+                                                                 low=0.0, high=1.0))
+        for key in ("max_candidates", "batch_size"):
+            object.__setattr__(self, key, check_int(key, getattr(self, key), low=1))
+        object.__setattr__(self, "near_miss_fraction", check_number(
+            "near_miss_fraction", self.near_miss_fraction, low=0.0, high=1.0, high_open=True))
+        object.__setattr__(self, "near_miss_fraction_when_positives_met", check_number(
+            "near_miss_fraction_when_positives_met", self.near_miss_fraction_when_positives_met, low=0.0, high=1.0,
+            high_open=True))
+        check("near_miss_fraction_when_positives_met",
+              round(self.near_miss_fraction_when_positives_met * self.batch_size) < self.batch_size,
+              f"leave at least one antipodal candidate per batch of {self.batch_size}",
+              self.near_miss_fraction_when_positives_met)
+        check("near_miss_fraction", self.near_misses_per_batch < self.batch_size,
+              f"leave at least one antipodal candidate per batch of {self.batch_size}", self.near_miss_fraction)
+        if self.near_miss_overhang is not None:
+            object.__setattr__(self, "near_miss_overhang", check_number("near_miss_overhang",
+                                                                        self.near_miss_overhang, low=0.0))
+        if self.near_miss_tilt is not None:
+            object.__setattr__(self, "near_miss_tilt", check_number(
+                "near_miss_tilt", self.near_miss_tilt, low=0.0, high=math.pi / 2, low_open=True))
+        check_instance("sampler", self.sampler, AntipodalParams)
+        if self.sampler.approach != "any":
+            object.__setattr__(self, "sampler", dataclasses.replace(self.sampler, approach="any"))
+        check_instance("lift", self.lift, LiftParams)
+        if self.lift.protocol != self.protocol:
+            object.__setattr__(self, "lift", self.lift.with_protocol(self.protocol))
+        object.__setattr__(self, "friction", check_number("friction", self.friction, low=0.0, low_open=True))
+        object.__setattr__(self, "num_perturbations", check_int("num_perturbations", self.num_perturbations, low=0))
+        for key in ("perturbation_translation", "perturbation_rotation"):
+            object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0))
+        check_instance("epsilon", self.epsilon, EpsilonParams)
+        check_choice("label", self.label, LABELS)
+
+    def positive(self, result: RolloutResult) -> bool:
+        """Whether ``result`` is a positive under :attr:`label` (``held``: outcome 5; ``firm``: ``result.firm``)."""
+        return bool(result.firm) if self.label == "firm" else result.code == Outcome.SUCCESS
+
+    @property
+    def near_misses_per_batch(self) -> int:
+        """Near misses in each batch: ``round(near_miss_fraction * batch_size)``."""
+        return int(round(self.near_miss_fraction * self.batch_size))
+
+    def overhang(self, gripper: GripperSpec) -> float:
+        """The shifted near misses' overhang (m) for ``gripper``: ``near_miss_overhang`` or
+        :func:`default_overhang`."""
+        return default_overhang(gripper) if self.near_miss_overhang is None else float(self.near_miss_overhang)
+
+    def tilt(self, gripper: GripperSpec) -> float:
+        """The tilted near misses' tilt (rad) for ``gripper``: ``near_miss_tilt`` or :func:`default_tilt`."""
+        return default_tilt(gripper) if self.near_miss_tilt is None else float(self.near_miss_tilt)
+
+
+def default_overhang(gripper: GripperSpec) -> float:
+    """Half the width of the gripper's pad face, ``pad_size[1] / 2`` (m): how far past the pad's edge a shifted near
+    miss leaves the contact it was aimed at (:mod:`graspgen.workflows.object_grasps`)."""
+    return gripper.pad_size[1] / 2.0
+
+
+def default_tilt(gripper: GripperSpec) -> float:
+    """``atan(max_width / (2 finger_length))`` (rad): the tilt about the TCP that swings the base of an open finger
+    (``finger_size[2]`` behind its tip) sideways by half the opening, past the grasp's centre line
+    (:mod:`graspgen.workflows.object_grasps`)."""
+    return math.atan(gripper.max_width / (2.0 * gripper.finger_size[2]))
+
+
+def protocol_opening(gripper: GripperSpec, lift: LiftParams) -> float:
+    """Pad separation (m) the jaws open to under a free-space protocol: its ``open_width`` (the gripper's
+    ``max_width`` when null), clipped to the gripper's range (as :class:`graspgen.sim.lift.LiftSimulator` does)."""
+    settings = lift.acronym if lift.protocol == "acronym" else lift.graspgen
+    opening = gripper.max_width if settings.open_width is None else settings.open_width
+    return float(np.clip(opening, gripper.min_width, gripper.max_width))

@@ -1,0 +1,147 @@
+"""Planning: a stage's tasks and their content keys, and what of them is already committed.
+
+:func:`plan` gives every task of a stage its key (:mod:`pipeline.keys`) from its params, payload, upstream
+shards, input files and code fingerprint; :func:`committed` and :func:`upstream_view` say which shards under
+those keys are on disk and intact. The run (:mod:`pipeline.scheduler`) and ``status`` (:mod:`pipeline.status`)
+both plan through here, so they agree on what is done.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import StageError
+from pipeline.fingerprint import stage_fingerprint
+from pipeline.keys import key_parts, params_digest, seed_key, sha256_file, task_key, upstream_digest
+from pipeline.stage import Stage, Task, Upstream
+from pipeline.store import Entry, Manifest, stage_dir
+
+
+@dataclasses.dataclass(frozen=True)
+class Project:
+    """A pipeline: its config schema (a dataclass with a ``run: RunConfig`` field) and its stages."""
+
+    name: str
+    schema: type
+    stages: tuple[Stage, ...]
+    user_errors: tuple[type[BaseException], ...] = ()
+    """Exception types (besides :class:`~pipeline.errors.GenError`) the command line reports in one line."""
+
+    def stage(self, name: str) -> Stage:
+        for s in self.stages:
+            if s.name == name:
+                return s
+        raise StageError(f"unknown stage {name!r}; choose one of: {', '.join(s.name for s in self.stages)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class PlannedTask:
+    """A task with its content key (:func:`pipeline.keys.task_key` of ``parts``), the key's parts and its seed key."""
+
+    task: Task
+    key: str
+    parts: dict[str, str]
+    seed: str
+    """The seed key (:func:`pipeline.keys.seed_key`): the task's random generator comes from it."""
+
+
+def committed(out: Path, stage: str, *, verify_hash: bool = True) -> dict[str, Entry]:
+    """Successful, intact entries of a stage folder, by key."""
+    manifest = Manifest(stage_dir(out, stage))
+    return {k: e for k, e in manifest.entries().items() if shard_ok(manifest, e, verify_hash=verify_hash)}
+
+
+_checked: dict[tuple[Any, ...], bool] | None = None
+"""The shard checks of the run (or status) in progress, by file and expected hash; None outside one."""
+
+
+@contextlib.contextmanager
+def one_check_per_shard() -> Iterator[None]:
+    """Within the block, :func:`shard_ok` hashes each shard file once: a run looks at a stage's shards when it
+    plans the stage, plans each stage below it and publishes. A check is keyed by the file's path, size, mtime,
+    inode and the expected sha256, so a shard the run writes (a new file) is checked anew."""
+    global _checked
+    saved, _checked = _checked, {}
+    try:
+        yield
+    finally:
+        _checked = saved
+
+
+def shard_ok(manifest: Manifest, entry: Entry, *, verify_hash: bool = True) -> bool:
+    """:meth:`Manifest.shard_ok`, done once per shard file inside :func:`one_check_per_shard`."""
+    if _checked is None or not verify_hash or entry.status != "ok" or entry.file is None:
+        return manifest.shard_ok(entry, verify_hash=verify_hash)
+    path = manifest.stage_dir / entry.file
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    key = (str(path), st.st_size, st.st_mtime_ns, st.st_ino, st.st_dev, entry.bytes, entry.sha256)
+    if key not in _checked:
+        _checked[key] = manifest.shard_ok(entry)
+    return _checked[key]
+
+
+def upstream_view(out: Path, stage: Stage, current: dict[str, set[str]], *, verify_hash: bool = True) -> Upstream:
+    """The committed shards of ``stage``'s inputs whose keys are current, by task id.
+
+    ``current`` maps each upstream stage to the keys its tasks have under the present config (the scheduler
+    plans stages in order, so it knows them). Shards of older configs stay on disk but are invisible here.
+    """
+    entries: dict[str, dict[str, Entry]] = {}
+    for dep in stage.inputs:
+        keys = current.get(dep, set())
+        entries[dep] = {e.task: e for k, e in committed(out, dep, verify_hash=verify_hash).items() if k in keys}
+    return Upstream(out, entries)
+
+
+def view_entries(view: Upstream, stage: str) -> dict[str, Entry]:
+    """``{task_id: Entry}`` of one stage in an upstream view."""
+    return {tid: view.entry(stage, tid) for tid in view.ids(stage)}
+
+
+def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> list[PlannedTask]:
+    """The stage's tasks with their content keys; ``seed`` is the run's (``config.run.seed``, see
+    :func:`pipeline.keys.key_parts`): 0 leaves the keys as they were before the seed existed."""
+    tasks = stage.tasks(params, upstream)
+    seen: dict[str, Task] = {}
+    for t in tasks:
+        if t.id in seen:
+            raise StageError(f"{stage.name}: two tasks share the id {t.id!r}; task ids must be unique")
+        seen[t.id] = t
+    file_hashes: dict[str, str] = {}
+    code = stage_fingerprint(type(stage).__module__)
+    params_hash = params_digest(params)  # the same for every task: hashed once, not once per task
+    planned = []
+    every: tuple[str, str] | None = None  # the upstream digests of a task that reads everything: the same for all
+    for t in tasks:
+        if t.needs is not None:
+            up = (upstream_digest(upstream.keys(t.needs)), upstream_digest(upstream.seeds(t.needs)))
+        else:
+            every = every or (upstream_digest(upstream.keys(None)), upstream_digest(upstream.seeds(None)))
+            up = every
+        hashes = {}
+        for i, path in enumerate(t.inputs):
+            if path not in file_hashes:
+                file_hashes[path] = sha256_file(path)
+            hashes[str(i)] = file_hashes[path]
+        parts = key_parts(
+            stage=stage.name,
+            version=stage.version,
+            params=params,
+            params_hash=params_hash,
+            task_id=t.id,
+            payload=t.payload,
+            upstream=None,
+            upstream_hash=up[0],
+            input_hashes=hashes,
+            code=code,
+            seed=seed,
+        )
+        planned.append(PlannedTask(t, task_key(parts), parts, seed_key(parts, None, upstream_seeds_hash=up[1])))
+    return planned

@@ -1,0 +1,167 @@
+"""Executing one task, in a worker process: run the stage, write its shard atomically, return its entry.
+
+A task never raises here: an error becomes a ``failed`` entry (one line for a user error, the end of the
+traceback for a bug), and a full disk an ``aborted`` one that the scheduler never commits. Between tasks the
+worker gives freed memory back to the OS (:func:`return_freed_memory`).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import gc
+import multiprocessing
+import os
+import signal
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import GenError
+from pipeline.keys import rng_for_key, sha256_file
+from pipeline.plan import PlannedTask
+from pipeline.stage import RunContext, Stage, Upstream
+from pipeline.store import Entry, atomic_path, shard_path
+
+OUT_OF_SPACE = (errno.ENOSPC, errno.EDQUOT)
+"""Write errors that are the disk's, not the task's: the run stops, and a resume redoes the task."""
+ABORTED = "aborted"
+"""Status of an entry the scheduler never commits: the task could not write its shard (disk full)."""
+
+
+class DiskFullError(GenError):
+    """The output folder's disk is full (or over quota). Finished tasks are kept; free space and run again."""
+
+
+def out_of_space(exc: OSError) -> bool:
+    """Whether a write failed for lack of space. HDF5 and Arrow do not always set ``errno``: read the text too."""
+    return exc.errno in OUT_OF_SPACE or any(os.strerror(e) in str(exc) for e in OUT_OF_SPACE)
+
+
+def _find_malloc_trim() -> Any:
+    """The C library's ``malloc_trim`` (glibc), or None where it has none (macOS, musl)."""
+    try:
+        return ctypes.CDLL(None).malloc_trim
+    except (AttributeError, OSError):
+        return None
+
+
+_MALLOC_TRIM = _find_malloc_trim()
+
+
+GC_MARGIN = 100 * 2**20
+"""Bytes of resident growth over a worker's first settled size after which it also collects garbage."""
+
+_settled_rss: int | None = None
+"""This worker's resident size after its first task (and a collection), or None before it."""
+
+
+def resident_bytes() -> int | None:
+    """This process's resident set size in bytes (Linux ``/proc``), or None where it cannot be read cheaply."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def return_freed_memory() -> bool:
+    """Give the heap pages freed since back to the OS, and collect garbage when the worker has grown; False where
+    the C library cannot trim.
+
+    Why: glibc keeps freed blocks in its heap, so a worker's resident size climbs to the highest peak any of its
+    tasks reached and stays there. loky reads that as a leak (300 MB above the worker's size after its first task),
+    restarts the worker and warns "A worker stopped while some jobs were given to the executor ... memory leak"
+    (seen in ``make dataset``, in the robustness stage). Measured on ten of the default dataset's robustness tasks
+    in one process: 290-390 MB resident after each with ``gc.collect()`` alone, 255-264 MB after this.
+
+    The trim costs microseconds; a full ``gc.collect()`` costs 40 ms in a worker that imported the grasp library
+    (bench/bench_engine.py: it was most of the engine's per-task overhead), so it runs only after the first task
+    and when the worker stands more than :data:`GC_MARGIN` above its settled size (Python's own generational
+    collection still runs as usual)."""
+    global _settled_rss
+    trimmed = _trim_heap()
+    rss = resident_bytes()
+    if rss is None or _settled_rss is None or rss > _settled_rss + GC_MARGIN:
+        gc.collect()
+        trimmed = _trim_heap()
+        rss = resident_bytes()
+        if _settled_rss is None:
+            _settled_rss = rss
+    return trimmed
+
+
+def _trim_heap() -> bool:
+    if _MALLOC_TRIM is None:
+        return False
+    _MALLOC_TRIM(0)
+    return True
+
+
+def execute_task(
+    stage: Stage, planned: PlannedTask, params: Any, upstream: Upstream, stage_dir: Path, ctx: RunContext
+) -> Entry:
+    """Run one task and write its shard; never raises (a failure becomes a ``failed`` entry)."""
+    in_worker = multiprocessing.parent_process() is not None
+    if in_worker and threading.current_thread() is threading.main_thread():
+        # Ctrl-C reaches the whole process group: the parent reports it once and stops; workers stay quiet.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        return _execute_task(stage, planned, params, upstream, stage_dir, ctx)
+    finally:
+        if in_worker:
+            return_freed_memory()
+
+
+def _execute_task(
+    stage: Stage, planned: PlannedTask, params: Any, upstream: Upstream, stage_dir: Path, ctx: RunContext
+) -> Entry:
+    start, cpu_start = time.perf_counter(), time.process_time()
+    task, key = planned.task, planned.key
+    final = shard_path(stage_dir, key, stage.ext)
+    try:
+        rng = rng_for_key(planned.seed)
+        with atomic_path(final) as tmp:
+            meta = stage.run(task, params, upstream, rng, tmp, ctx) or {}
+        return Entry(
+            key=key,
+            task=task.id,
+            status="ok",
+            file=str(final.relative_to(stage_dir)),
+            sha256=sha256_file(final),
+            bytes=final.stat().st_size,
+            seconds=round(time.perf_counter() - start, 4),
+            cpu_seconds=round(time.process_time() - cpu_start, 4),
+            parts=planned.parts,
+            meta=meta,
+            seed=planned.seed,
+        )
+    except OSError as exc:
+        if not out_of_space(exc):
+            return _failed_entry(stage, planned, exc, start)
+        # Not the task's fault: nothing is recorded, so the task runs again once space is freed.
+        return Entry(key=key, task=task.id, status=ABORTED, error=f"{exc.strerror or exc} while writing {final}")
+    except Exception as exc:  # noqa: BLE001 - any task error is recorded, and the run goes on
+        return _failed_entry(stage, planned, exc, start)
+
+
+def _failed_entry(stage: Stage, planned: PlannedTask, exc: BaseException, start: float) -> Entry:
+    """The manifest entry of a task that raised: the error in one line for a user error, with the end of the
+    traceback for anything else (a bug)."""
+    text = f"{type(exc).__name__}: {exc}"
+    if not _is_user_error(exc, stage):
+        text += "\n" + "".join(traceback.format_exception(exc)[-3:])
+    return Entry(
+        key=planned.key,
+        task=planned.task.id,
+        status="failed",
+        seconds=round(time.perf_counter() - start, 4),
+        parts=planned.parts,
+        error=text.strip(),
+    )
+
+
+def _is_user_error(exc: BaseException, stage: Stage) -> bool:
+    return isinstance(exc, (GenError, *stage.user_errors))

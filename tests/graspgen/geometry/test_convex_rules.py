@@ -1,0 +1,147 @@
+"""Tests of the decision rules of graspgen.geometry.convex.convex_decomposition: the near-convex skip (judged by hull
+slack), CoACD's pre-processing only for meshes that are not closed, the refinement only where the slack is over the
+criterion, and the cache key's dependence on these settings. CoACD is replaced by a recorder where the rule, not the
+decomposition, is under test."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import coacd
+import numpy as np
+import pytest
+import trimesh
+
+from graspgen.errors import SettingsError
+from graspgen.geometry.convex import CoacdParams, coacd_cache_key, convex_decomposition, hull_slack
+from graspgen.geometry.repair import repair_mesh
+from tests.shapes import l_shape
+
+FAST = CoacdParams(threshold=0.05, resolution=300, mcts_iterations=20, mcts_nodes=10, preprocess_resolution=20)
+
+
+def _fail(*args, **kwargs):
+    raise AssertionError("CoACD must not run")
+
+
+def notched_box(depth: float) -> trimesh.Trimesh:
+    """A 0.1 x 0.06 x 0.04 m box with a 0.06 x 0.04 m notch ``depth`` deep cut into its top face (the notch's
+    opening is 9.7 % of the hull's area)."""
+    box = trimesh.creation.box((0.1, 0.06, 0.04))
+    notch = trimesh.creation.box((0.06, 0.04, 2 * depth))
+    notch.apply_translation((0.0, 0.0, 0.02))
+    mesh, _ = repair_mesh(box.difference(notch, engine="manifold"))
+    assert mesh.is_watertight and mesh.volume > 0
+    return mesh
+
+
+
+class Recorder:
+    """Stands in for ``coacd.run_coacd``: records each call's keyword arguments and returns given parts."""
+
+    def __init__(self, parts):
+        self.parts, self.calls = parts, []
+
+    def __call__(self, mesh, **kwargs):
+        self.calls.append(kwargs)
+        return [[np.asarray(v), np.asarray(f)] for v, f in self.parts]
+
+
+def test_convex_box_skips_coacd_and_is_its_hull(monkeypatch):
+    monkeypatch.setattr(coacd, "run_coacd", _fail)
+    box = trimesh.creation.box((0.05, 0.07, 0.12))
+    (part,) = convex_decomposition(box, FAST)
+    hull = box.convex_hull
+    assert trimesh.Trimesh(*part).volume == pytest.approx(hull.volume, rel=1e-12)
+    np.testing.assert_array_equal(np.sort(part[0], axis=0), np.sort(hull.vertices, axis=0))
+
+
+def test_shallow_notch_is_near_convex_its_hull_alone(monkeypatch):
+    monkeypatch.setattr(coacd, "run_coacd", _fail)
+    mesh = notched_box(0.0005)  # 0.5 mm deep: the hull bridges it by 0.5 mm at most, under the 1 mm criterion
+    assert mesh.convex_hull.volume > mesh.volume * (1 + 1e-6)  # not convex in the exact sense
+    (part,) = convex_decomposition(mesh, FAST)
+    np.testing.assert_array_equal(np.sort(part[0], axis=0), np.sort(mesh.convex_hull.vertices, axis=0))
+    assert hull_slack(mesh, [part], 4000, np.random.default_rng(0)).max == pytest.approx(0.0005, abs=1e-6)
+
+
+def test_deep_notch_or_no_near_convex_rule_goes_to_coacd(monkeypatch):
+    deep = notched_box(0.004)  # 4 mm: the hull's slack over the notch (> 5 % of its area) is over 1 mm
+    hull = deep.convex_hull
+    recorder = Recorder([(hull.vertices, hull.faces)])
+    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    assert hull.volume <= 1.05 * deep.volume  # within the volume gate: the slack decides
+    convex_decomposition(deep, FAST)
+    assert len(recorder.calls) == 1
+    convex_decomposition(notched_box(0.0005), CoacdParams(near_convex_excess=0.0))
+    assert len(recorder.calls) == 2
+
+
+def test_closed_mesh_skips_preprocessing_an_open_one_does_not(monkeypatch):
+    mesh = l_shape()
+    hull = mesh.convex_hull
+    recorder = Recorder([(hull.vertices, hull.faces)])
+    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    once = dataclasses.replace(FAST, refine_excess=0.0)  # the hull given back would be refined: one call each
+    convex_decomposition(mesh, once)
+    open_mesh = mesh.copy()
+    open_mesh.update_faces(np.arange(len(open_mesh.faces)) != 0)  # one triangle missing: not watertight
+    assert not open_mesh.is_watertight
+    convex_decomposition(open_mesh, once)
+    convex_decomposition(mesh, dataclasses.replace(once, preprocess_mode="on"))
+    assert [c["preprocess_mode"] for c in recorder.calls] == ["off", "auto", "on"]
+
+
+def test_l_shape_is_decomposed_within_the_slack_criterion():
+    mesh = l_shape()
+    parts = convex_decomposition(mesh, FAST)
+    assert len(parts) > 1
+    slack = hull_slack(mesh, parts, 20_000, np.random.default_rng(3))
+    assert slack.p95 <= FAST.slack_p95
+
+
+def test_cavity_filled_but_not_reachable_is_not_refined(monkeypatch):
+    """A closed hollow box: parts filling its inner void exceed its volume by far, yet stand out of its surface
+    nowhere (the void is not reachable), so the refinement is not run."""
+    outer = trimesh.creation.box((0.08, 0.08, 0.08))
+    inner = trimesh.creation.box((0.07, 0.07, 0.07))
+    inner.invert()
+    shell = trimesh.util.concatenate([outer, inner])
+    assert shell.is_watertight and shell.volume > 0
+    hull = outer.convex_hull
+    recorder = Recorder([(hull.vertices, hull.faces)])
+    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    (part,) = convex_decomposition(shell, FAST)
+    assert hull.volume / shell.volume - 1 > FAST.refine_excess
+    assert len(recorder.calls) == 1
+
+
+def test_cavity_bridged_from_outside_is_refined_with_a_quarter_threshold(monkeypatch):
+    outer = trimesh.creation.cylinder(radius=0.03, height=0.06, sections=24)
+    inner = trimesh.creation.cylinder(radius=0.027, height=0.06, sections=24)
+    inner.apply_translation((0, 0, 0.004))
+    cup, _ = repair_mesh(outer.difference(inner, engine="manifold"))
+    hull = cup.convex_hull
+    recorder = Recorder([(hull.vertices, hull.faces)])
+    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    convex_decomposition(cup, FAST)
+    assert [c["threshold"] for c in recorder.calls] == [FAST.threshold, FAST.threshold / 4]
+    assert recorder.calls[1]["max_convex_hull"] == 4 * FAST.max_convex_hull
+
+
+def test_decomposition_is_deterministic_and_keyed_by_the_new_settings():
+    mesh = l_shape()
+    first = convex_decomposition(mesh, FAST)
+    second = convex_decomposition(mesh, FAST)
+    assert [(v.tobytes(), f.tobytes()) for v, f in first] == [(v.tobytes(), f.tobytes()) for v, f in second]
+    keys = {coacd_cache_key(mesh, p) for p in (FAST, CoacdParams(preprocess_mode="auto"),
+                                                  CoacdParams(slack_p95=2e-3), CoacdParams(near_convex_excess=0.0),
+                                                  CoacdParams(slack_samples=1000), CoacdParams())}
+    assert len(keys) == 6
+
+
+@pytest.mark.parametrize("field, value", [("preprocess_mode", "sometimes"), ("slack_p95", 0.0),
+                                          ("near_convex_excess", -0.1), ("slack_samples", 0)])
+def test_bad_settings_name_their_field(field, value):
+    with pytest.raises(SettingsError, match=field):
+        CoacdParams(**{field: value})
