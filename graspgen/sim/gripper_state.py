@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from graspgen.errors import NotFoundError
-from graspgen.validation import check_transform
+from graspgen.sim.poses_mj import pos_quat
 
 __all__ = [
     "set_gripper_target",
@@ -38,18 +38,10 @@ def _id(model: mujoco.MjModel, objtype, name: str) -> int:
     return idx
 
 
-def _pos_quat(T) -> tuple[np.ndarray, np.ndarray]:
-    """(position (3,), unit quaternion (4,)) of the rigid transform ``T_tcp``; SettingsError otherwise."""
-    T = check_transform("T_tcp", T)
-    quat = np.empty(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(T[:3, :3]).reshape(-1))
-    return T[:3, 3].copy(), quat
-
-
 def set_gripper_target(model: mujoco.MjModel, data: mujoco.MjData, T_tcp, *, prefix: str = "gripper/") -> None:
     """Move only the mocap target to TCP pose ``T_tcp`` (4x4, world); the weld pulls the gripper there while
     stepping. Use for smooth motions (approach, lift)."""
-    pos, quat = _pos_quat(T_tcp)
+    pos, quat = pos_quat(T_tcp, "T_tcp")
     mocap_id = model.body_mocapid[_id(model, mujoco.mjtObj.mjOBJ_BODY, f"{prefix}mocap")]
     data.mocap_pos[mocap_id] = pos
     data.mocap_quat[mocap_id] = quat
@@ -58,7 +50,7 @@ def set_gripper_target(model: mujoco.MjModel, data: mujoco.MjData, T_tcp, *, pre
 def set_gripper_pose(model: mujoco.MjModel, data: mujoco.MjData, T_tcp, *, prefix: str = "gripper/") -> None:
     """Teleport the gripper: put the TCP frame (free joint) AND the mocap target at ``T_tcp`` (4x4, world), zero the
     base velocity, and run ``mj_forward``. Jaw joints are left as they are."""
-    pos, quat = _pos_quat(T_tcp)
+    pos, quat = pos_quat(T_tcp, "T_tcp")
     set_gripper_target(model, data, T_tcp, prefix=prefix)
     jid = _id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{prefix}free")
     qadr, vadr = model.jnt_qposadr[jid], model.jnt_dofadr[jid]
