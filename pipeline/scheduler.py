@@ -27,6 +27,7 @@ from pipeline.plan import (
     committed,
     one_check_per_shard,
     plan,
+    read_entries,
     shard_ok,
     upstream_view,
     view_entries,
@@ -140,6 +141,17 @@ class _StageRun:
         """The planned keys (computed once: a stage's finish tests every manifest entry against them)."""
         return frozenset(p.key for p in self.planned)
 
+    @functools.cached_property
+    def shipped(self) -> Upstream:
+        """The upstream view as its tasks get it: entries without their key parts, which a task never reads and
+        which are most of an entry's bytes (a scene's task gets the whole object library: 1,000 entries at 1,000
+        objects, pickled for every task)."""
+        return Upstream(
+            self.upstream.out,
+            {s: {t: dataclasses.replace(e, parts={}) for t, e in view_entries(self.upstream, s).items()}
+             for s in self.upstream.stages()},
+        )
+
 
 def _start_stage(
     stage: Stage, params: Any, out: Path, retry_failed: bool, current: dict[str, set[str]], seed: int = 0
@@ -150,7 +162,7 @@ def _start_stage(
     upstream = upstream_view(out, stage, current)
     planned = plan(stage, params, upstream, seed=seed)
     report = StageReport(stage.name, total=len(planned))
-    entries = manifest.entries()
+    entries = read_entries(manifest)
     pending: list[PlannedTask] = []
     for p in planned:
         entry = entries.get(p.key)
@@ -198,7 +210,7 @@ def _run_wave(
                 stage_dir(out, r.stage.name).mkdir(parents=True, exist_ok=True)
         calls = [
             joblib.delayed(execute_task)(
-                r.stage, p, r.params, r.upstream.subset(p.task.needs), stage_dir(out, r.stage.name), ctx
+                r.stage, p, r.params, r.shipped.subset(p.task.needs), stage_dir(out, r.stage.name), ctx
             )
             for r, p in work
         ]
@@ -245,7 +257,7 @@ def _finish_stage(
     """Collect the warnings of a stage whose tasks are all settled, publish it, and report it."""
     stage = r.stage
     warned = {} if warned is None else warned
-    own = {e.task: e for e in Manifest(stage_dir(out, stage.name)).entries().values() if e.key in r.keys}
+    own = {e.task: e for e in read_entries(Manifest(stage_dir(out, stage.name))).values() if e.key in r.keys}
     r.report.warnings = stage_warnings(stage, r.params, r.upstream, own)
     # What publish sees also names the failed tasks: their inputs are left out of what it lays out.
     warned[stage.name] = r.report.warnings + [

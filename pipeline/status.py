@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.keys import changed_parts
-from pipeline.plan import Project, one_check_per_shard, plan, shard_ok
+from pipeline.plan import Project, one_check_per_shard, plan, read_entries, shard_ok
 from pipeline.scheduler import WARNING_TASKS_SHOWN
 from pipeline.stage import Upstream, topological_order
 from pipeline.store import Entry, Manifest, stage_dir
@@ -63,7 +63,7 @@ def _status(project: Project, config: Any, targets: Sequence[str] | None) -> lis
             not_done.add(stage.name)
             continue
         manifest = Manifest(stage_dir(out, stage.name))
-        entries = manifest.entries()
+        entries = read_entries(manifest)
         by_task: dict[str, Entry] = {}
         for e in entries.values():
             by_task[e.task] = e

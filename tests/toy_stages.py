@@ -3,6 +3,8 @@
 ``numbers`` writes one JSON shard per id (random draws from the task rng); ``sums`` reads them all and writes
 their sum. A task whose id starts with ``bad`` raises, to exercise failure handling. The engine benchmark
 (``python -m bench.bench_engine``) runs the same pipeline at 10k+ tasks (``numbers.count``, ``numbers.work_ms``).
+``WARN_TOY`` is the same pipeline with stages that warn and a published ``total.txt`` that is checked and repaired
+(the scheduler's and the CLI's warning and publish-status tests).
 """
 
 from __future__ import annotations
@@ -129,3 +131,51 @@ class SumsStage(Stage):
 
 
 TOY = Project(name="toy", schema=ToyConfig, stages=(SumsStage(), NumbersStage()))
+
+
+class WarningNumbers(NumbersStage):
+    """Numbers whose planning leaves out ids starting with ``x`` (and says so), and whose tasks warn: every task
+    the same text, ids with a ``w`` one of their own."""
+
+    def tasks(self, params, upstream):
+        return [t for t in super().tasks(params, upstream) if not t.id.startswith("x")]
+
+    def plan_warnings(self, params, upstream):
+        dropped = [i for i in params.ids if i.startswith("x")]
+        return [f"left out {', '.join(dropped)} [ids starting with x]"] if dropped else []
+
+    def run(self, task, params, upstream, rng, out, ctx):
+        meta = super().run(task, params, upstream, rng, out, ctx)
+        return {**meta, "warnings": ["draws look odd"] + ([f"{task.id} is special"] if "w" in task.id else [])}
+
+
+class CheckedSums(SumsStage):
+    """Sums whose published total.txt is checked: publish_status names it when it is missing or not what publish
+    writes (or when its shard is being remade), publish rewrites it and says so; the warnings it sees are kept."""
+
+    seen_warnings: dict = {}
+
+    @staticmethod
+    def text(shards):
+        total = float(read_json(shards.path("sums", "total"))["total"])
+        return f"{total!r} from {len(shards.ids('numbers'))} shards\n"
+
+    def publish_status(self, params, shards, dest):
+        path = dest / "published" / "total.txt"
+        if not path.exists():
+            return ["total.txt missing (will be replaced)"]
+        if "total" not in shards.ids("sums") or path.read_text() != self.text(shards):
+            return ["total.txt damaged (will be replaced)"]
+        return []
+
+    def publish(self, params, shards, dest):
+        CheckedSums.seen_warnings = {s: shards.warnings(s) for s in ("numbers", "sums")}
+        path = dest / "published" / "total.txt"
+        before = path.read_text() if path.exists() else None
+        super().publish(params, shards, dest)
+        if before is not None and before != path.read_text():
+            return ["replaced total.txt (damaged)"]
+        return None
+
+
+WARN_TOY = Project(name="toy", schema=TOY.schema, stages=(CheckedSums(), WarningNumbers()))

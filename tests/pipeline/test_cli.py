@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 from pipeline.cli import build_app
 from pipeline.errors import ConfigError
 from tests.paths import REPO
-from tests.toy_stages import TOY
+from tests.toy_stages import TOY, WARN_TOY
 
 app = build_app(TOY)
 runner = CliRunner()
@@ -316,8 +316,6 @@ def test_an_unexpected_error_is_one_line_with_the_traceback_in_the_log(tmp_path,
 
 
 def test_warnings_are_printed_at_the_end_of_every_run_literally(tmp_path):
-    from test_scheduler import WARN_TOY
-
     warn_app = build_app(WARN_TOY)
     args = ["run", "--out", str(tmp_path / "o"), "--jobs", "1", "--set", "numbers.ids=[a, w1, x9]"]
     for _ in range(2):  # the second run skips everything and still warns
@@ -335,8 +333,6 @@ def test_warnings_are_printed_at_the_end_of_every_run_literally(tmp_path):
 
 
 def test_status_names_a_damaged_published_file_and_run_replaces_it(tmp_path):
-    from test_scheduler import WARN_TOY
-
     warn_app = build_app(WARN_TOY)
     out = tmp_path / "o"
     assert runner.invoke(warn_app, ["run", "--out", str(out), "--jobs", "1"]).exit_code == 0

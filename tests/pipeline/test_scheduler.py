@@ -11,14 +11,13 @@ from pipeline import worker
 from pipeline.config import load_config
 from pipeline.errors import LockError, StageError
 from pipeline.keys import sha256_file
-from pipeline.plan import Project
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import run_pipeline
 from pipeline.stage import Task, topological_order
 from pipeline.status import status
 from pipeline.store import Manifest, RunLock, stage_dir
 from pipeline.worker import DiskFullError, return_freed_memory
-from tests.toy_stages import TOY, NumbersStage, SumsStage, read_json, write_json
+from tests.toy_stages import TOY, WARN_TOY, CheckedSums, read_json, write_json
 
 
 def config(out, *sets):
@@ -289,55 +288,8 @@ def test_a_full_disk_stops_the_run_and_a_resume_after_freeing_space_gives_the_sa
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Status checks shards as the run does; warnings; the published output's check and repair.
-
-
-class WarningNumbers(NumbersStage):
-    """Numbers whose planning leaves out ids starting with ``x`` (and says so), and whose tasks warn: every task
-    the same text, ids with a ``w`` one of their own."""
-
-    def tasks(self, params, upstream):
-        return [t for t in super().tasks(params, upstream) if not t.id.startswith("x")]
-
-    def plan_warnings(self, params, upstream):
-        dropped = [i for i in params.ids if i.startswith("x")]
-        return [f"left out {', '.join(dropped)} [ids starting with x]"] if dropped else []
-
-    def run(self, task, params, upstream, rng, out, ctx):
-        meta = super().run(task, params, upstream, rng, out, ctx)
-        return {**meta, "warnings": ["draws look odd"] + ([f"{task.id} is special"] if "w" in task.id else [])}
-
-
-class CheckedSums(SumsStage):
-    """Sums whose published total.txt is checked: publish_status names it when it is missing or not what publish
-    writes (or when its shard is being remade), publish rewrites it and says so; the warnings it sees are kept."""
-
-    seen_warnings: dict = {}
-
-    @staticmethod
-    def text(shards):
-        total = float(read_json(shards.path("sums", "total"))["total"])
-        return f"{total!r} from {len(shards.ids('numbers'))} shards\n"
-
-    def publish_status(self, params, shards, dest):
-        path = dest / "published" / "total.txt"
-        if not path.exists():
-            return ["total.txt missing (will be replaced)"]
-        if "total" not in shards.ids("sums") or path.read_text() != self.text(shards):
-            return ["total.txt damaged (will be replaced)"]
-        return []
-
-    def publish(self, params, shards, dest):
-        CheckedSums.seen_warnings = {s: shards.warnings(s) for s in ("numbers", "sums")}
-        path = dest / "published" / "total.txt"
-        before = path.read_text() if path.exists() else None
-        super().publish(params, shards, dest)
-        if before is not None and before != path.read_text():
-            return ["replaced total.txt (damaged)"]
-        return None
-
-
-WARN_TOY = Project(name="toy", schema=TOY.schema, stages=(CheckedSums(), WarningNumbers()))
+# Status checks shards as the run does; warnings; the published output's check and repair (WARN_TOY, in
+# tests/toy_stages.py).
 
 
 def flip_byte(path):

@@ -11,21 +11,7 @@ from graspgen.grippers import load_gripper
 from graspgen.io.acronym import SUCCESS_KEY, hand_base_from_tcp, read_acronym, tcp_from_hand_base, write_acronym
 
 
-def random_poses(n: int, seed: int = 0) -> np.ndarray:
-    """(n, 4, 4) random rigid transforms (rotations from QR of Gaussian matrices, det +1), translations in +-0.2 m."""
-    rng = np.random.default_rng(seed)
-    T = np.tile(np.eye(4), (n, 1, 1))
-    for i in range(n):
-        q, r = np.linalg.qr(rng.standard_normal((3, 3)))
-        q *= np.sign(np.diag(r))
-        if np.linalg.det(q) < 0:
-            q[:, 0] *= -1
-        T[i, :3, :3] = q
-        T[i, :3, 3] = rng.uniform(-0.2, 0.2, 3)
-    return T
-
-
-def test_tcp_lies_along_the_base_z_axis_and_the_axes_are_shared():
+def test_tcp_lies_along_the_base_z_axis_and_the_axes_are_shared(random_poses):
     T_tcp = random_poses(5)
     base = hand_base_from_tcp(T_tcp, 0.1034)
     np.testing.assert_array_equal(base[:, :3, :3], T_tcp[:, :3, :3])  # z approach, x closing in both frames
@@ -38,7 +24,7 @@ def test_tcp_lies_along_the_base_z_axis_and_the_axes_are_shared():
 
 
 @pytest.mark.parametrize("gripper, file_type", [("panda", "franka_panda"), ("robotiq_2f85", "robotiq_2f85")])
-def test_export_then_import_gives_the_same_poses(tmp_path, gripper, file_type):
+def test_export_then_import_gives_the_same_poses(tmp_path, gripper, file_type, random_poses):
     T_tcp = random_poses(50, seed=1)
     success = np.arange(50) % 3 == 0
     path = tmp_path / "g.h5"
@@ -60,7 +46,7 @@ def test_export_then_import_gives_the_same_poses(tmp_path, gripper, file_type):
     assert not grasps.transforms.flags.writeable
 
 
-def test_reads_files_written_the_way_acronym_writes_them(tmp_path):
+def test_reads_files_written_the_way_acronym_writes_them(tmp_path, random_poses):
     """Byte strings (h5py's fixed-length ASCII), no scale or gripper entries: ACRONYM's defaults apply."""
     path = tmp_path / "Mug_x_0.01.h5"
     T_base = random_poses(3, seed=2)
@@ -94,7 +80,7 @@ def test_read_errors_name_the_file(tmp_path):
         read_acronym(bad)
 
 
-def test_unknown_gripper_type_lists_the_known_ones(tmp_path):
+def test_unknown_gripper_type_lists_the_known_ones(tmp_path, random_poses):
     path = tmp_path / "g.h5"
     write_acronym(path, random_poses(2), [1, 0], object_file="a.obj")
     with h5py.File(path, "r+") as f:
@@ -106,7 +92,7 @@ def test_unknown_gripper_type_lists_the_known_ones(tmp_path):
     np.testing.assert_allclose(grasps.tcp_poses(0.1034), random_poses(2), atol=1e-12)  # an explicit offset works
 
 
-def test_write_checks_its_arguments(tmp_path):
+def test_write_checks_its_arguments(tmp_path, random_poses):
     with pytest.raises(ValueError, match="success: expected 2 labels"):
         write_acronym(tmp_path / "g.h5", random_poses(2), [1], object_file="a.obj")
     with pytest.raises(SettingsError, match="unknown 'hand'"):

@@ -13,8 +13,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
+import scipy.stats
 
-from graspgen.io.card_stats import CORRELATED, LABEL_COLUMNS, CardSettings, _num, _ranks, card_stats, label_summary
+from graspgen.io.card_stats import CORRELATED, LABEL_COLUMNS, CardSettings, _num, card_stats, label_summary
 from graspgen.io.card_tally import GraspTally
 from graspgen.io.dataset_table import OUTCOME_NAMES, GroupedParquetWriter, check_table, float_values
 from graspgen.io.reader import open_dataset
@@ -28,6 +29,9 @@ BINS = 20
 
 
 def _ref_correlations(table):
+    """The labels' pairwise correlations by scipy (independent of the library's ``_correlations``): Pearson from
+    ``scipy.stats.pearsonr``, Spearman from ``scipy.stats.spearmanr`` (average ranks for ties), None where fewer
+    than 3 pairs or a constant side."""
     cols = [c for c in CORRELATED if c in table.column_names]
     values = {c: float_values(table.column(c)) for c in cols}
     pearson, spearman, counts = [], [], []
@@ -37,16 +41,28 @@ def _ref_correlations(table):
             ok = np.isfinite(values[a]) & np.isfinite(values[b])
             x, y = values[a][ok], values[b][ok]
             rows_n.append(int(ok.sum()))
-            if ok.sum() < 3 or x.std() == 0 or y.std() == 0:
+            if ok.sum() < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
                 rows_p.append(None)
                 rows_s.append(None)
                 continue
-            rows_p.append(_num(np.corrcoef(x, y)[0, 1]))
-            rows_s.append(_num(np.corrcoef(_ranks(x), _ranks(y))[0, 1]))
+            rows_p.append(float(scipy.stats.pearsonr(x, y).statistic))
+            rows_s.append(float(scipy.stats.spearmanr(x, y).statistic))
         pearson.append(rows_p)
         spearman.append(rows_s)
         counts.append(rows_n)
     return {"columns": cols, "n": counts, "pearson": pearson, "spearman": spearman}
+
+
+def assert_correlations_close(got, expected, rel=1e-5):
+    """The card's correlations against the reference: same columns, pair counts and undefined (None) entries, each
+    coefficient within ``rel`` (the card rounds to 6 significant digits)."""
+    assert got["columns"] == expected["columns"] and got["n"] == expected["n"]
+    for kind in ("pearson", "spearman"):
+        for row_got, row_ref in zip(got[kind], expected[kind], strict=True):
+            for g, r in zip(row_got, row_ref, strict=True):
+                assert (g is None) == (r is None), (kind, got[kind], expected[kind])
+                if r is not None:
+                    assert g == pytest.approx(r, rel=rel, abs=1e-6), (kind, got[kind], expected[kind])
 
 
 def _ref_rate(k, n):
@@ -82,7 +98,7 @@ def reference_stats(root, files):
                    "grippers": sorted(set(table.column("gripper").to_pylist()))},
         "outcomes": [{"code": c, "name": name, "grasps": int((outcome == c).sum())}
                      for c, name in enumerate(OUTCOME_NAMES)],
-        "objects": per_object, "scenes": scenes, "labels": labels, "correlation": _ref_correlations(table),
+        "objects": per_object, "scenes": scenes, "labels": labels,
     }
     sets = {}
     t = pq.read_table(root / "object_grasps.parquet", columns=["object_name", "candidate", "success"])
@@ -254,11 +270,19 @@ def test_card_statistics_streamed_equal_the_whole_table_ones(dataset):
     root, files = dataset
     stats, _ = card_stats(root, files, CardSettings(plots=False, histogram_bins=BINS))
     expected = reference_stats(root, files)
-    assert json.loads(json.dumps(stats)) == json.loads(json.dumps(expected))
+    stats = json.loads(json.dumps(stats))
+    correlation = stats.pop("correlation")
+    assert stats == json.loads(json.dumps(expected))
+    reference = _ref_correlations(pq.read_table(root / "grasps.parquet"))
+    assert_correlations_close(correlation, reference)
+    # The correlations are not trivial: defined off the diagonal, neither 0 nor +-1 everywhere, Spearman not Pearson.
+    off = [(i, j) for i in range(len(reference["columns"])) for j in range(len(reference["columns"])) if i != j]
+    assert all(reference["spearman"][i][j] is not None for i, j in off)
+    assert any(0.01 < abs(reference["pearson"][i][j]) < 0.99 for i, j in off)
+    assert any(abs(reference["pearson"][i][j] - reference["spearman"][i][j]) > 1e-3 for i, j in off)
     # The figures are not trivial: every label summarised, a per-value and a binned histogram, correlations.
     assert set(stats["labels"]) == set(LABEL_COLUMNS)
     assert "values" in stats["labels"]["robustness"]["histogram"] and "edges" in stats["labels"]["epsilon"]["histogram"]
-    assert stats["correlation"]["spearman"][0][1] is not None
     assert stats["objects"]["never_grasped"]["grasps"] == 0 and stats["object_sets"]["objects"]["no_rows_object"]
 
 

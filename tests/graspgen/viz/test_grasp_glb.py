@@ -25,20 +25,6 @@ from tests.paths import REPO
 SMOKE = REPO / "configs" / "smoke.yaml"
 
 
-def random_poses(n: int, seed: int = 0) -> np.ndarray:
-    """(n, 4, 4) random rigid transforms (QR rotations, det +1), translations in +-0.2 m."""
-    rng = np.random.default_rng(seed)
-    T = np.tile(np.eye(4), (n, 1, 1))
-    for i in range(n):
-        q, r = np.linalg.qr(rng.standard_normal((3, 3)))
-        q *= np.sign(np.diag(r))
-        if np.linalg.det(q) < 0:
-            q[:, 0] *= -1
-        T[i, :3, :3] = q
-        T[i, :3, 3] = rng.uniform(-0.2, 0.2, 3)
-    return T
-
-
 def load_glb(data: bytes) -> trimesh.Scene:
     scene = trimesh.load(io.BytesIO(data), file_type="glb")
     assert isinstance(scene, trimesh.Scene)
@@ -56,7 +42,7 @@ def colour_of(scene: trimesh.Scene, geometry: str) -> tuple[int, ...]:
     return tuple(int(c) for c in colours[0])
 
 
-def test_glb_holds_the_mesh_and_one_marker_per_grasp_at_its_pose_in_its_colour():
+def test_glb_holds_the_mesh_and_one_marker_per_grasp_at_its_pose_in_its_colour(random_poses):
     box = trimesh.creation.box((0.05, 0.07, 0.12))
     T = random_poses(9)
     success = np.array([True, False, False, True, True, False, True, False, False])
@@ -102,7 +88,7 @@ def test_marker_is_the_open_fork_from_the_pad_tips_back_to_the_hand_base():
     assert robotiq.bounds[0][2] == pytest.approx(-0.14) and robotiq.bounds[1][0] == pytest.approx(0.0425 + 0.085 / 40)
 
 
-def test_glb_argument_errors():
+def test_glb_argument_errors(random_poses):
     box = trimesh.creation.box((0.05, 0.05, 0.05))
     with pytest.raises(ValueError, match="labels: expected 2 labels"):
         grasps_glb(box.vertices, box.faces, random_poses(2), [True])
