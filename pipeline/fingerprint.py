@@ -15,22 +15,31 @@ left every rollout "done"). The rule, for the module that defines a stage class:
 The walk reads source files with :mod:`ast` and finds them on disk from their top-level package (located with
 :func:`importlib.util.find_spec`, which imports nothing for a top-level name). Each file is read once per process;
 a stage's fingerprint is computed once per process (``gen status`` and ``gen run`` compute the same thing).
+
+Parsing and normalising ~120 modules costs 1-2 s, paid by every ``gen run`` and ``gen status`` before they plan
+anything, so inside :func:`module_cache` (which both open on ``run.cache_dir``) a module's (digest, imports) is kept
+in ``<cache_dir>/fingerprints/<module>.json`` under the sha256 of its source bytes, the module name and the Python
+version: a cached answer is used only for the very bytes it was computed from, so the cache changes no key. A
+damaged cache file is ignored and rewritten; an unwritable folder leaves the cache unused.
 """
 
 from __future__ import annotations
 
 import ast
+import contextlib
 import functools
 import hashlib
 import importlib.metadata
 import importlib.util
+import json
+import os
 import platform
 import sys
 import sysconfig
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["CODE_PREFIX", "PACKAGE_PREFIX", "stage_fingerprint"]
+__all__ = ["CODE_PREFIX", "PACKAGE_PREFIX", "module_cache", "stage_fingerprint"]
 
 CODE_PREFIX = "code:"
 """Key-part name prefix of a module's digest: ``code:graspgen/sim/lift.py``."""
@@ -40,10 +49,29 @@ PACKAGE_PREFIX = "package:"
 _DIGEST_CHARS = 16
 """Hex characters kept of each module's sha256 (64 bits: enough to notice an edit; the key hashes them all)."""
 
+_CACHE_FORMAT = 1
+"""Version of what a cache file holds: bump it when :func:`_digest` or :func:`_imported_names` change."""
+
+_cache_dir: Path | None = None
+"""Folder of the module cache in use (:func:`module_cache`); None outside one."""
+
 _EXTERNAL_DIRS = tuple(
     Path(p).resolve()
     for p in {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
 )
+
+
+@contextlib.contextmanager
+def module_cache(folder: str | os.PathLike) -> Iterator[None]:
+    """Within the block, each module's normalised-source digest and imports are read from (or written to)
+    ``folder/fingerprints/``, under the sha256 of the module's source bytes: the answers are the same, only
+    faster."""
+    global _cache_dir
+    saved, _cache_dir = _cache_dir, Path(folder) / "fingerprints"
+    try:
+        yield
+    finally:
+        _cache_dir = saved
 
 
 @functools.cache
@@ -91,9 +119,46 @@ def _module_info(name: str) -> tuple[str, str, tuple[str, ...]] | None:
     origin = _project_file(name)
     if origin is None:
         return None
-    tree = ast.parse(origin.read_text(encoding="utf-8"), filename=str(origin))
-    imports = tuple(_imported_names(tree, name, origin.name == "__init__.py"))
-    return _relative_path(name, origin), _digest(tree), imports
+    source = origin.read_bytes()
+    cache_file = None if _cache_dir is None else _cache_dir / f"{name}.json"
+    stamp = {"format": _CACHE_FORMAT, "python": platform.python_version(), "module": name,
+             "source_sha256": hashlib.sha256(source).hexdigest()}
+    cached = None if cache_file is None else _read_cache(cache_file, stamp)
+    if cached is not None:
+        digest, imports = cached
+    else:
+        tree = ast.parse(source.decode("utf-8"), filename=str(origin))
+        imports = tuple(_imported_names(tree, name, origin.name == "__init__.py"))
+        digest = _digest(tree)
+        if cache_file is not None:
+            _write_cache(cache_file, {**stamp, "digest": digest, "imports": list(imports)})
+    return _relative_path(name, origin), digest, imports
+
+
+def _read_cache(path: Path, stamp: dict[str, object]) -> tuple[str, tuple[str, ...]] | None:
+    """(digest, imports) from a cache file written for exactly ``stamp`` (same source bytes, module, Python and
+    cache format); None when there is none, it is for other bytes, or it cannot be read."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if all(data.get(k) == v for k, v in stamp.items()):
+            digest, imports = data["digest"], data["imports"]
+            if isinstance(digest, str) and isinstance(imports, list) and all(isinstance(i, str) for i in imports):
+                return digest, tuple(imports)
+    except (OSError, ValueError, AttributeError, KeyError):
+        pass
+    return None
+
+
+def _write_cache(path: Path, data: dict[str, object]) -> None:
+    """Write a cache file atomically (temp file in the same folder, then ``os.replace``); skipped quietly when the
+    folder is not writable, since the cache only saves time."""
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps(data, sort_keys=True), encoding="utf-8")
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
 
 
 @functools.cache

@@ -19,7 +19,7 @@ from typing import Any
 
 from pipeline.errors import StageError
 from pipeline.fingerprint import stage_fingerprint
-from pipeline.keys import key_parts, params_digest, seed_key, sha256_file, task_key, upstream_digest
+from pipeline.keys import key_parts, params_digest, seed_key, sha256_file, sha256_text, task_key, upstream_digest
 from pipeline.stage import Stage, Task, Upstream
 from pipeline.store import Entry, Manifest, stage_dir
 
@@ -165,6 +165,14 @@ def view_entries(view: Upstream, stage: str) -> dict[str, Entry]:
     return {tid: view.entry(stage, tid) for tid in view.ids(stage)}
 
 
+def _task_key(parts: dict[str, str]) -> str:
+    """:func:`pipeline.keys.task_key` of a task's parts, a flat dict of strings: that is its own JSON form, so the
+    canonical text is ``json.dumps`` of it, without the general walk (a third of planning time at 5,000 tasks)."""
+    if all(type(k) is str and type(v) is str for k, v in parts.items()):
+        return sha256_text(json.dumps(parts, sort_keys=True, separators=(",", ":")))
+    return task_key(parts)
+
+
 def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> list[PlannedTask]:
     """The stage's tasks with their content keys; ``seed`` is the run's (``config.run.seed``, see
     :func:`pipeline.keys.key_parts`): 0 leaves the keys as they were before the seed existed."""
@@ -204,5 +212,5 @@ def plan(stage: Stage, params: Any, upstream: Upstream, *, seed: int = 0) -> lis
             code=code,
             seed=seed,
         )
-        planned.append(PlannedTask(t, task_key(parts), parts, seed_key(parts, None, upstream_seeds_hash=up[1])))
+        planned.append(PlannedTask(t, _task_key(parts), parts, seed_key(parts, None, upstream_seeds_hash=up[1])))
     return planned

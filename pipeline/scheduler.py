@@ -21,6 +21,7 @@ import joblib
 
 from pipeline.backends import parallel_backend, resolve_jobs
 from pipeline.config import RunConfig, to_yaml
+from pipeline.fingerprint import module_cache
 from pipeline.plan import (
     PlannedTask,
     Project,
@@ -98,7 +99,7 @@ def run_pipeline(
     warned: dict[str, list[str]] = {}
     for stage in order:
         stage.check(stage.params(config))
-    with RunLock(out), parallel_backend(run, jobs), one_check_per_shard():
+    with RunLock(out), parallel_backend(run, jobs), one_check_per_shard(), module_cache(ctx.cache_dir):
         remove_stray_temps(out)
         write_text_atomic(run_config_path(out), to_yaml(config, comments=False))
         for index, wave in enumerate(stage_waves(order)):

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from pipeline.fingerprint import module_cache
 from pipeline.keys import changed_parts
 from pipeline.plan import Project, one_check_per_shard, plan, read_entries, shard_ok
 from pipeline.scheduler import WARNING_TASKS_SHOWN
@@ -43,7 +44,7 @@ def status(project: Project, config: Any, targets: Sequence[str] | None = None) 
     ``waiting``). A stage with no new work (and no failed task) is asked what its publish step would repair
     (:meth:`Stage.publish_status`): those lines appear as ``published: ...`` reasons.
     """
-    with one_check_per_shard():
+    with one_check_per_shard(), module_cache(config.run.cache_dir):
         return _status(project, config, targets)
 
 

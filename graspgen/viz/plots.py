@@ -81,32 +81,61 @@ def draw_plots(root: Path, table: pa.Table, stats: Mapping[str, Any], settings: 
     return written
 
 
+OUTCOME_ROWS = 40
+"""Most rows of the outcomes plot's per-object panel: beyond it, objects are sorted by their success share and
+drawn in this many groups of consecutive objects, so the figure (and the memory drawing it takes) stays one size
+however many objects the dataset has (one row per object at 1,000 objects was a 300-inch-tall canvas)."""
+
+
 def _outcomes_plot(plt: Any, root: Path, stats: Mapping[str, Any]) -> str:
-    """Outcomes: overall bars and each object's mix."""
+    """Outcomes: overall bars and each object's mix (or, past :data:`OUTCOME_ROWS` objects, the mix of groups of
+    objects sorted by success share)."""
     names = [o["name"] for o in stats["outcomes"]]
     counts = [o["grasps"] for o in stats["outcomes"]]
-    objects = [k for k, v in stats["objects"].items() if v["grasps"]]
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, max(3.5, 0.3 * len(objects) + 1.5)), width_ratios=[1, 1.3])
+    rows, labels, title = _outcome_rows(stats)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, max(3.5, 0.3 * len(rows) + 1.5)), width_ratios=[1, 1.3])
     a.bar(range(len(names)), counts, color=OUTCOME_COLOURS, edgecolor="black", linewidth=0.5)
     for i, n in enumerate(counts):
         a.text(i, n, str(n), ha="center", va="bottom")
     a.set_xticks(range(len(names)), [f"{i} {n}" for i, n in enumerate(names)], rotation=30, ha="right")
     a.set_ylabel("grasps")
     a.set_title(f"outcomes of {stats['counts']['grasps']} grasps")
-    left = np.zeros(len(objects))
+    left = np.zeros(len(rows))
     for code, colour in enumerate(OUTCOME_COLOURS):
-        share = np.array([stats["objects"][o]["outcomes"][code] / stats["objects"][o]["grasps"] for o in objects])
-        b.barh(range(len(objects)), share, left=left, color=colour, edgecolor="black", linewidth=0.3,
+        share = rows[:, code] if len(rows) else np.zeros(0)
+        b.barh(range(len(rows)), share, left=left, color=colour, edgecolor="black", linewidth=0.3,
                label=f"{code} {names[code]}")
         left += share
-    b.set_yticks(range(len(objects)), [f"{o} ({stats['objects'][o]['grasps']})" for o in objects])
+    b.set_yticks(range(len(rows)), labels)
     b.invert_yaxis()
     b.set_xlim(0, 1)
-    b.set_title("share of each object's grasps by outcome (grasps)")
+    b.set_title(title)
     b.legend(loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=3, fontsize=7, frameon=False)
     fig.tight_layout()
     _save(fig, root / "plots" / "outcomes.png")
     return "plots/outcomes.png"
+
+
+def _outcome_rows(stats: Mapping[str, Any]) -> tuple[np.ndarray, list[str], str]:
+    """The per-object panel's rows: ``(k, 6)`` outcome shares, their labels and the panel title; one row per
+    object with grasps, or :data:`OUTCOME_ROWS` groups of objects (sorted by success share, then name) with the
+    mix of their grasps pooled."""
+    objects = [k for k, v in stats["objects"].items() if v["grasps"]]
+    counts = np.array([stats["objects"][o]["outcomes"][: len(OUTCOME_COLOURS)] for o in objects], dtype=float)
+    counts = counts.reshape(len(objects), len(OUTCOME_COLOURS))
+    totals = np.array([stats["objects"][o]["grasps"] for o in objects], dtype=float)
+    if len(objects) <= OUTCOME_ROWS:
+        return (counts / totals[:, None], [f"{o} ({int(n)})" for o, n in zip(objects, totals)],
+                "share of each object's grasps by outcome (grasps)")
+    success = counts[:, -1] / totals
+    order = sorted(range(len(objects)), key=lambda i: (-success[i], objects[i]))
+    groups = np.array_split(np.asarray(order), OUTCOME_ROWS)
+    rows = np.array([counts[g].sum(axis=0) / totals[g].sum() for g in groups])
+    starts = np.cumsum([0] + [len(g) for g in groups[:-1]])
+    labels = [f"objects {start + 1}-{start + len(g)}" for start, g in zip(starts, groups)]
+    title = (f"{len(objects)} objects sorted by success share, in {OUTCOME_ROWS} groups: "
+             "share of each group's grasps by outcome")
+    return rows, labels, title
 
 
 def _robustness_plot(plt: Any, root: Path, stats: Mapping[str, Any]) -> str | None:

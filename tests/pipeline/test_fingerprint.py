@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -67,6 +68,35 @@ def test_formatting_comments_and_docstrings_do_not_count_but_a_constant_does(pac
     package("stage.py", path.read_text().replace("X = (\n    1\n)", "X = 2"))
     after = stage_fingerprint("fpkg.stage")
     assert changed_parts(before, after) == ["code: fpkg/stage.py"]
+
+
+def _fresh(module: str) -> dict[str, str]:
+    for cache in (stage_fingerprint, fingerprint._module_info):
+        cache.cache_clear()
+    return stage_fingerprint(module)
+
+
+def test_the_module_cache_answers_only_for_the_bytes_it_was_computed_from(package, tmp_path):
+    path = package("stage.py", "from fpkg import helpers\nX = 1\n")
+    package("helpers.py", "import numpy\n")
+    plain = _fresh("fpkg.stage")
+    with fingerprint.module_cache(tmp_path / "cache"):
+        assert _fresh("fpkg.stage") == plain  # computed, then written
+        files = sorted(p.name for p in (tmp_path / "cache" / "fingerprints").iterdir())
+        assert files == ["fpkg.helpers.json", "fpkg.json", "fpkg.stage.json"]
+        assert _fresh("fpkg.stage") == plain  # read back
+        entry = tmp_path / "cache" / "fingerprints" / "fpkg.stage.json"
+        data = json.loads(entry.read_text())
+        entry.write_text(json.dumps({**data, "digest": "planted"}))
+        assert _fresh("fpkg.stage")["code:fpkg/stage.py"] == "planted"  # the same bytes: the cache is what answers
+        path.write_text("from fpkg import helpers\nX = 2\n")
+        edited = _fresh("fpkg.stage")
+        assert edited["code:fpkg/stage.py"] not in ("planted", plain["code:fpkg/stage.py"])
+        entry.write_text("{ not json")
+        assert _fresh("fpkg.stage") == edited  # a damaged file is ignored...
+        assert json.loads(entry.read_text())["digest"] == edited["code:fpkg/stage.py"]  # ...and rewritten
+    path.write_text("from fpkg import helpers\nX = 1\n")
+    assert _fresh("fpkg.stage") == plain  # outside the block: computed from the source
 
 
 def test_changed_parts_name_the_file_and_the_package_versions():

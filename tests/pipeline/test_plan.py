@@ -69,3 +69,19 @@ def test_read_entries_equal_the_manifest_and_share_strings(tmp_path):
     assert plain == shared
     codes = [e.parts["code"] for e in shared.values()]
     assert all(c is codes[0] for c in codes)
+
+
+def test_planned_keys_equal_the_plain_task_key(tmp_path):
+    from pipeline.keys import task_key
+    from pipeline.plan import _task_key, plan
+    from tests.toy_stages import TOY
+
+    stage = TOY.stages[0]
+    cfg_params = stage.params(TOY.schema())
+    planned = plan(stage, cfg_params, Upstream(tmp_path, {d: {} for d in stage.inputs}))
+    assert planned and all(p.key == task_key(p.parts) for p in planned)
+    odd = {"a": "1", "b": 2}  # not all strings: the general walk, the same answer
+    assert _task_key(odd) == task_key(odd)
+    rng = np.random.default_rng(0)
+    parts = {f"code:m{i}.py": f"{rng.integers(2**62):x}" for i in range(50)} | {"task": "t\u00e9", "z": "\"q\""}
+    assert _task_key(parts) == task_key(parts)

@@ -15,6 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 import scipy.stats
 
+from graspgen.io import row_groups
 from graspgen.io.card_stats import CORRELATED, LABEL_COLUMNS, CardSettings, _num, card_stats, label_summary
 from graspgen.io.card_tally import GraspTally
 from graspgen.io.dataset_table import OUTCOME_NAMES, GroupedParquetWriter, check_table, float_values
@@ -149,7 +150,8 @@ def reference_write(path, tables, row_group_rows, metadata):
             rows = 0
         groups[-1].append(t)
         rows += len(t)
-    with pq.ParquetWriter(path, schema, compression="zstd", compression_level=3, use_dictionary=True,
+    strings = [f.name for f in schema if pa.types.is_string(f.type)]  # the published files' dictionaries
+    with pq.ParquetWriter(path, schema, compression="zstd", compression_level=3, use_dictionary=strings,
                           write_statistics=True, store_schema=True) as writer:
         for group in groups:
             if group:
@@ -323,8 +325,10 @@ def _bytes(table):
     return buf.getvalue()
 
 
+@pytest.mark.parametrize("compact", [2, 1000])
 @pytest.mark.parametrize("group_rows", [1, 150, 400, 10_000])
-def test_streamed_writer_makes_the_bytes_of_the_whole_list_writer(tmp_path, group_rows):
+def test_streamed_writer_makes_the_bytes_of_the_whole_list_writer(tmp_path, group_rows, compact, monkeypatch):
+    monkeypatch.setattr(row_groups, "COMPACT_TABLES", compact)  # the buffered tables made one block every 2: same bytes
     rng = np.random.default_rng(3)
     tables = [scene_table(rng, f"s{i:02d}", max(n, 1), OBJECTS).slice(0, n)
               for i, n in enumerate([120, 0, 35, 300, 80, 80, 1])]  # an empty scene too: it takes no group
@@ -338,6 +342,21 @@ def test_streamed_writer_makes_the_bytes_of_the_whole_list_writer(tmp_path, grou
     assert (tmp_path / "new.parquet").read_bytes() == (tmp_path / "ref.parquet").read_bytes()
     assert writer.rows == sum(len(t) for t in tables)
     assert max(held) <= max(group_rows, max(len(t) for t in tables))  # one group's tables held, at most
+
+
+def test_only_the_string_columns_are_dictionary_encoded(tmp_path):
+    rng = np.random.default_rng(4)
+    tables = [scene_table(rng, f"s{i:02d}", 50, OBJECTS) for i in range(3)]
+    with GroupedParquetWriter(tmp_path / "t.parquet", row_group_rows=1000, metadata={}) as writer:
+        for t in tables:
+            writer.add(t)
+    meta = pq.ParquetFile(tmp_path / "t.parquet").metadata
+    schema = tables[0].schema
+    for i in range(meta.num_columns):
+        column = meta.row_group(0).column(i)
+        top = schema.field(column.path_in_schema.split(".")[0])
+        dictionary = any("DICTIONARY" in e for e in column.encodings)
+        assert dictionary == pa.types.is_string(top.type), (column.path_in_schema, column.encodings)
 
 
 def _card_of(root):
