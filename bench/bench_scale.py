@@ -14,7 +14,9 @@ of this script, which reaps them); peak resident memory (``VmHWM``) of each proc
 0.2 s and grouped as the scheduler (``gen``), its loky workers, or the Dask workers. From the manifests: each
 stage's task CPU seconds (``Entry.cpu_seconds``) per object. Scheduler overhead: the CPU of the run's processes not
 spent inside a task (start-up, planning, keys, sha256 checks, dispatch, manifests, publish), as a share of task
-CPU. Published size: bytes under ``OUT/dataset``.
+CPU: the CPU of phases 1 and 2 (every process, exact) minus the task CPU the manifests record; phase 3 is timed
+apart. The same samples of ``/proc`` give each process's CPU, so the overhead is also split by process
+(:func:`outside_by_role`). Published size: bytes under ``OUT/dataset``.
 
 With ``--backend dask`` (or ``both``) the same runs go to a cluster started here as separate processes:
 ``dask scheduler`` on 127.0.0.1 and ``dask worker`` processes (``--jobs`` of them, one thread each), named in the
@@ -78,15 +80,22 @@ def _descendants(root: int) -> list[int]:
     return found
 
 
-def _peak_kb(pid: int) -> tuple[int, str] | None:
+_TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _peak_kb(pid: int) -> tuple[int, str, float] | None:
+    """(peak resident kB, command line, CPU seconds so far) of a live process, from ``/proc``; None once gone."""
     try:
         with open(f"/proc/{pid}/status") as f:
             hwm = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
         with open(f"/proc/{pid}/cmdline", "rb") as f:
             cmd = f.read().replace(b"\0", b" ").decode(errors="replace")
-    except (OSError, StopIteration, ValueError):
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        cpu = (int(fields[11]) + int(fields[12])) / _TICK  # utime + stime
+    except (OSError, StopIteration, ValueError, IndexError):
         return None
-    return hwm, cmd
+    return hwm, cmd, cpu
 
 
 def _role(cmd: str, root_pid: int, pid: int, cluster: bool) -> str:
@@ -102,11 +111,14 @@ def _role(cmd: str, root_pid: int, pid: int, cluster: bool) -> str:
 
 
 class PeakMemory:
-    """Samples the peak resident memory of a process tree (and of extra pids) until stopped, by role."""
+    """Samples the peak resident memory and the CPU seconds of a process tree (and of extra pids) until stopped,
+    by role. A process's CPU is its last sample: the last 0.2 s of each process can be missed, so the roles' CPU
+    sums to a little less than the tree's (``RUSAGE_CHILDREN``, which :func:`run_gen` reports as the total)."""
 
     def __init__(self, root_pid: int, extra: tuple[int, ...] = ()):
         self.root_pid, self.extra = root_pid, extra
         self.peaks: dict[int, tuple[int, str]] = {}
+        self.cpu: dict[int, float] = {}
         self.in_cluster: set[int] = set()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
@@ -117,20 +129,25 @@ class PeakMemory:
             for pid in {*_descendants(self.root_pid), *self.extra}:
                 for child in _descendants(pid) if pid in self.extra else [pid]:
                     got = _peak_kb(child)
+                    if got is not None:
+                        self.cpu[child] = max(self.cpu.get(child, 0.0), got[2])
                     if got is not None and got[0] >= self.peaks.get(child, (0, ""))[0]:
-                        self.peaks[child] = got
+                        self.peaks[child] = got[:2]
                     if pid in self.extra:
                         self.in_cluster.add(child)
             self._stop.wait(0.2)
 
-    def stop(self) -> dict[str, float]:
+    def stop(self) -> tuple[dict[str, float], dict[str, float]]:
+        """(peak MB of the largest process, CPU seconds of all processes), each by role."""
         self._stop.set()
         self._thread.join()
         by_role: dict[str, float] = {}
+        cpu: dict[str, float] = {}
         for pid, (kb, cmd) in self.peaks.items():
             role = _role(cmd, self.root_pid, pid, pid in self.in_cluster)
             by_role[role] = max(by_role.get(role, 0.0), round(kb / 1024, 1))
-        return by_role
+            cpu[role] = round(cpu.get(role, 0.0) + self.cpu.get(pid, 0.0), 2)
+        return by_role, cpu
 
 
 def _children_cpu() -> float:
@@ -144,11 +161,11 @@ def run_gen(args: list[str], extra_pids: tuple[int, ...] = ()) -> dict:
     proc = subprocess.Popen([*GEN, *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     peaks = PeakMemory(proc.pid, extra_pids)
     stdout, stderr = proc.communicate()
-    memory = peaks.stop()
+    memory, cpu_by_role = peaks.stop()
     if proc.returncode != 0:
         raise SystemExit(f"gen {' '.join(args)} failed ({proc.returncode}):\n{stderr[-3000:]}")
     return {"wall_s": round(time.perf_counter() - wall0, 2), "cpu_s": round(_children_cpu() - cpu0, 2),
-            "peak_mb": memory, "stdout": (stdout + stderr)[-4000:]}
+            "cpu_s_by_role": cpu_by_role, "peak_mb": memory, "stdout": (stdout + stderr)[-4000:]}
 
 
 SMALL = {
@@ -271,6 +288,7 @@ def measure(n: int, jobs: int, backend: str, work: Path) -> dict:
         "task_cpu_s_per_object": round(task_cpu / n, 2),
         "stage_cpu_s_per_object": {s: round(t["cpu_s"] / n, 3) for s, t in tasks.items()},
         "outside_tasks_cpu_s": round(run_cpu - task_cpu, 1),
+        "outside_tasks_by_role": outside_by_role(phases, task_cpu, run_cpu),
         "overhead_share": round((run_cpu - task_cpu) / task_cpu, 4) if task_cpu else None,
         "wall_s": round(phases["stages"]["wall_s"] + phases["dataset"]["wall_s"], 1),
         "status_s": phases["status"]["wall_s"],
@@ -278,6 +296,25 @@ def measure(n: int, jobs: int, backend: str, work: Path) -> dict:
         "noop_ran_nothing": noop_clean,
         "published_mb": round(_du(out / "dataset") / 2**20, 1),
     }
+
+
+def outside_by_role(phases: dict, task_cpu: float, run_cpu: float) -> dict[str, float]:
+    """The CPU of the run's two phases by process, around the task CPU: ``scheduler``, the ``gen`` processes'
+    CPU (start-up, planning, keys, shard checks, dispatch, manifests, publish, and the tasks of a wave that has
+    one task to run, e.g. the probe's: joblib runs a single call in the calling process); ``workers_outside_tasks``,
+    the workers' CPU minus all task CPU (start-up and imports, unpickling, per-task upkeep; smaller by the tasks
+    that ran in the scheduler); ``unsampled``, what the 0.2 s samples of ``/proc`` missed (the last moments of
+    each process). They add up to ``outside_tasks_cpu_s``, whose total is exact (``RUSAGE_CHILDREN``)."""
+    sampled: dict[str, float] = {}
+    for phase in ("stages", "dataset"):
+        for role, seconds in phases[phase]["cpu_s_by_role"].items():
+            sampled[role] = sampled.get(role, 0.0) + seconds
+    workers = sum(v for r, v in sampled.items() if r in ("loky_worker", "dask_worker"))
+    split = {"scheduler": sampled.get("scheduler", 0.0), "workers_outside_tasks": workers - task_cpu}
+    split["other_processes"] = sum(v for r, v in sampled.items() if r not in ("scheduler", "loky_worker",
+                                                                               "dask_worker"))
+    split["unsampled"] = run_cpu - sum(sampled.values())
+    return {k: round(v, 1) for k, v in split.items()}
 
 
 def _leaves() -> list[str]:
@@ -291,11 +328,14 @@ def _leaves() -> list[str]:
 
 def _sum_phases(parts: list[dict]) -> dict:
     peaks: dict[str, float] = {}
+    cpu: dict[str, float] = {}
     for p in parts:
         for role, mb in p["peak_mb"].items():
             peaks[role] = max(peaks.get(role, 0.0), mb)
+        for role, seconds in p["cpu_s_by_role"].items():
+            cpu[role] = round(cpu.get(role, 0.0) + seconds, 2)
     return {"wall_s": round(sum(p["wall_s"] for p in parts), 2), "cpu_s": round(sum(p["cpu_s"] for p in parts), 2),
-            "peak_mb": peaks, "stdout": parts[-1]["stdout"]}
+            "cpu_s_by_role": cpu, "peak_mb": peaks, "stdout": parts[-1]["stdout"]}
 
 
 def cost_model(row: dict) -> dict:

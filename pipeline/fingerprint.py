@@ -177,8 +177,11 @@ def _project_root(top: str) -> Path | None:
     return origin.parent.parent if origin.name == "__init__.py" else origin.parent
 
 
+@functools.cache
 def _project_file(name: str) -> Path | None:
-    """The source file of the project module ``name`` (``a/b.py`` or ``a/b/__init__.py``), or None."""
+    """The source file of the project module ``name`` (``a/b.py`` or ``a/b/__init__.py``), or None. Looked up
+    once per process: the walk asks for the same names thousands of times (every stage imports the library), and
+    each look-up is a few file stats (a third of ``gen status``'s planning at 100 objects)."""
     top, *rest = name.split(".")
     root = _project_root(top)
     if root is None:
@@ -237,7 +240,8 @@ def _imported_names(tree: ast.Module, module: str, is_package: bool) -> Iterator
             yield from (f"{base}.{alias.name}" for alias in node.names if alias.name != "*")
 
 
-def _project_modules(name: str) -> list[str] | None:
+@functools.cache
+def _project_modules(name: str) -> tuple[str, ...] | None:
     """The project modules behind an imported name (the module and its parent packages), or None when the name
     is third-party. ``a.b.c`` where ``c`` is an attribute of module ``a.b`` resolves to ``a``, ``a.b``."""
     parts = name.split(".")
@@ -245,7 +249,7 @@ def _project_modules(name: str) -> list[str] | None:
         return None
     for end in range(len(parts), 0, -1):
         if _project_file(".".join(parts[:end])) is not None:
-            return [".".join(parts[:i]) for i in range(1, end + 1)]
+            return tuple(".".join(parts[:i]) for i in range(1, end + 1))
     return None
 
 

@@ -25,6 +25,7 @@ from pipeline.fingerprint import module_cache
 from pipeline.plan import (
     PlannedTask,
     Project,
+    check_shards,
     committed,
     one_check_per_shard,
     plan,
@@ -35,7 +36,7 @@ from pipeline.plan import (
 )
 from pipeline.stage import RunContext, Stage, Upstream, stage_waves, topological_order
 from pipeline.store import Entry, Manifest, RunLock, remove_stray_temps, run_config_path, stage_dir, write_text_atomic
-from pipeline.worker import ABORTED, DiskFullError, execute_task, out_of_space
+from pipeline.worker import ABORTED, DiskFullError, SharedView, TaskView, execute_task, out_of_space
 
 
 @dataclasses.dataclass
@@ -97,17 +98,46 @@ def run_pipeline(
     reports: dict[str, StageReport] = {}
     current: dict[str, set[str]] = {}
     warned: dict[str, list[str]] = {}
-    for stage in order:
-        stage.check(stage.params(config))
+    checks = _Checks(config, list(order))
     with RunLock(out), parallel_backend(run, jobs), one_check_per_shard(), module_cache(ctx.cache_dir):
         remove_stray_temps(out)
         write_text_atomic(run_config_path(out), to_yaml(config, comments=False))
         for index, wave in enumerate(stage_waves(order)):
-            for stage_run in _run_wave(wave, config, out, ctx, jobs, retry_failed, notify, current, warned):
+            for stage_run in _run_wave(wave, config, out, ctx, jobs, retry_failed, notify, current, warned, checks):
                 current[stage_run.stage.name] = stage_run.keys
                 stage_run.report.wave = index
                 reports[stage_run.stage.name] = stage_run.report
     return [reports[s.name] for s in order]
+
+
+@dataclasses.dataclass
+class _Checks:
+    """The stages' :meth:`Stage.check` calls of a run: made once, just before its first task is handed out, for
+    the stages of that wave that have tasks to run and for every stage of the later waves (not planned yet, so
+    they may run). A stage planned complete (every task committed or a remembered failure) runs nothing and is not
+    checked, so a no-op rerun checks nothing.
+
+    Why not check every stage up front: a check may be costly for what it guards (the probe's imports torch and
+    scikit-learn, seconds of CPU and ~250 MB in the scheduler process of every ``gen run``, though the probe's own
+    task imports them where it runs). The promise stays: no task starts before every stage that may run is
+    checked."""
+
+    config: Any
+    unplanned: list[Stage]
+    done: bool = False
+
+    def planning(self, wave: list[Stage]) -> None:
+        """The stages of ``wave`` are being planned: from now on a check covers them only if they have work."""
+        names = {s.name for s in wave}
+        self.unplanned = [s for s in self.unplanned if s.name not in names]
+
+    def before_work(self, runs: list[_StageRun]) -> None:
+        """Check the stages that may still run, once, before the first task of the run."""
+        if self.done:
+            return
+        self.done = True
+        for stage in [r.stage for r in runs if r.pending] + self.unplanned:
+            stage.check(stage.params(self.config))
 
 
 def _finished(calls: list[Any], n_jobs: int) -> Iterator[Any]:
@@ -143,15 +173,30 @@ class _StageRun:
         return frozenset(p.key for p in self.planned)
 
     @functools.cached_property
-    def shipped(self) -> Upstream:
-        """The upstream view as its tasks get it: entries without their key parts, which a task never reads and
-        which are most of an entry's bytes (a scene's task gets the whole object library: 1,000 entries at 1,000
-        objects, pickled for every task)."""
-        return Upstream(
-            self.upstream.out,
-            {s: {t: dataclasses.replace(e, parts={}) for t, e in view_entries(self.upstream, s).items()}
-             for s in self.upstream.stages()},
-        )
+    def slim(self) -> dict[str, dict[str, Entry]]:
+        """The upstream entries as tasks get them: without their key parts, which a task never reads and which are
+        most of an entry's bytes (a scene's task gets the whole object library: 1,000 entries at 1,000 objects)."""
+        return {s: {t: dataclasses.replace(e, parts={}) for t, e in view_entries(self.upstream, s).items()}
+                for s in self.upstream.stages()}
+
+    @functools.cached_property
+    def shared(self) -> SharedView:
+        """:attr:`slim` pickled once, for the run's own workers (:class:`~pipeline.worker.SharedView`)."""
+        return SharedView(self.upstream.out, self.slim)
+
+    @functools.cached_property
+    def slim_view(self) -> Upstream:
+        """:attr:`slim` as an :class:`Upstream`, for a cluster's workers."""
+        return Upstream(self.upstream.out, self.slim)
+
+    def shipped(self, task: PlannedTask, own_workers: bool) -> Upstream | TaskView:
+        """What ``task`` is shipped: a :class:`~pipeline.worker.TaskView` of the shared view to the run's own
+        workers (loky's processes, started by this process from the same code), its ``Upstream.subset`` to a
+        cluster's (dask, ray): those live on between runs and may hold an older ``pipeline.worker``, and an
+        ``Upstream`` is read by every version."""
+        if own_workers:
+            return self.shared.task_view(task.task.needs)
+        return self.slim_view.subset(task.task.needs)
 
 
 def _start_stage(
@@ -164,6 +209,7 @@ def _start_stage(
     planned = plan(stage, params, upstream, seed=seed)
     report = StageReport(stage.name, total=len(planned))
     entries = read_entries(manifest)
+    check_shards(manifest, [entries[p.key] for p in planned if p.key in entries])
     pending: list[PlannedTask] = []
     for p in planned:
         entry = entries.get(p.key)
@@ -187,14 +233,20 @@ def _run_wave(
     notify: Any,
     current: dict[str, set[str]],
     warned: dict[str, list[str]] | None = None,
+    checks: _Checks | None = None,
 ) -> list[_StageRun]:
     """Run the pending tasks of stages that do not read each other through one pool of workers.
 
     Tasks go out longest first (:attr:`Task.cost`; stable, so equal costs keep stage and task order), and a
-    stage is published and reported as soon as its last task is committed, while the others go on.
+    stage is published and reported as soon as its last task is committed, while the others go on. ``checks``
+    (:class:`_Checks`) run before the first task of the run.
     """
     start = time.perf_counter()
+    checks = checks or _Checks(config, list(wave))
+    checks.planning(wave)
     runs = [_start_stage(stage, stage.params(config), out, retry_failed, current, config.run.seed) for stage in wave]
+    if any(r.pending for r in runs):
+        checks.before_work(runs)
     left = {r.stage.name: len(r.pending) for r in runs}
     for r in runs:
         notify("stage_start", stage=r.stage.name, total=len(r.planned), skipped=r.report.skipped,
@@ -209,10 +261,9 @@ def _run_wave(
         for r in runs:
             if r.pending:
                 stage_dir(out, r.stage.name).mkdir(parents=True, exist_ok=True)
+        own = _own_workers()
         calls = [
-            joblib.delayed(execute_task)(
-                r.stage, p, r.params, r.shipped.subset(p.task.needs), stage_dir(out, r.stage.name), ctx
-            )
+            joblib.delayed(execute_task)(r.stage, p, r.params, r.shipped(p, own), stage_dir(out, r.stage.name), ctx)
             for r, p in work
         ]
         for entry in _finished(calls, min(jobs, len(work))):
@@ -223,6 +274,12 @@ def _run_wave(
             if left[r.stage.name] == 0:
                 _finish_stage(r, out, current, start, notify, warned)
     return runs
+
+
+def _own_workers() -> bool:
+    """Whether the run's tasks go to processes this one starts (joblib's loky, or this process itself)."""
+    backend = joblib.parallel.get_active_backend()[0]
+    return type(backend).__name__ in ("LokyBackend", "SequentialBackend")
 
 
 def _commit(r: _StageRun, entry: Entry) -> None:

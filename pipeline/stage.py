@@ -154,7 +154,9 @@ class Stage(abc.ABC):
 
     def check(self, params: Any) -> None:  # noqa: B027 - optional hook
         """Optional: raise if the stage cannot run here with these params (a missing library, a missing file), so
-        the run stops before any work. Called for every stage of a run, in order, before the first task."""
+        the run stops before any work. Called once, before the run's first task, for every stage of the run that
+        may still run (in order); not for a stage whose tasks are all committed, so a run with nothing to do
+        calls none, and a check may be costly (import a library) without slowing a no-op rerun."""
 
     @abc.abstractmethod
     def tasks(self, params: Any, upstream: Upstream) -> list[Task]:

@@ -9,7 +9,7 @@ from typing import Any
 
 from pipeline.fingerprint import module_cache
 from pipeline.keys import changed_parts
-from pipeline.plan import Project, one_check_per_shard, plan, read_entries, shard_ok
+from pipeline.plan import Project, check_shards, one_check_per_shard, plan, read_entries, shard_ok
 from pipeline.scheduler import WARNING_TASKS_SHOWN
 from pipeline.stage import Upstream, topological_order
 from pipeline.store import Entry, Manifest, stage_dir
@@ -72,6 +72,7 @@ def _status(project: Project, config: Any, targets: Sequence[str] | None) -> lis
         after_run = {d: {**intact.get(d, {}), **redo.get(d, {})} for d in stage.inputs}
         planned = plan(stage, params, Upstream(out, after_run), seed=config.run.seed)
         current[stage.name] = {p.key for p in planned}
+        check_shards(manifest, [entries[p.key] for p in planned if p.key in entries])
         st = StageStatus(stage.name, "done", total=len(planned))
         reasons: dict[str, list[str]] = {}
         own_intact: dict[str, Entry] = {}

@@ -29,7 +29,8 @@ def package(tmp_path, monkeypatch):
     def write(name: str, source: str) -> Path:
         path = tmp_path / "fpkg" / name
         path.write_text(textwrap.dedent(source))
-        for cache in (stage_fingerprint, fingerprint._module_info, fingerprint._project_root):
+        for cache in (stage_fingerprint, fingerprint._module_info, fingerprint._project_root,
+                      fingerprint._project_file, fingerprint._project_modules):
             cache.cache_clear()  # a new process would read the files afresh
         return path
 
@@ -71,7 +72,8 @@ def test_formatting_comments_and_docstrings_do_not_count_but_a_constant_does(pac
 
 
 def _fresh(module: str) -> dict[str, str]:
-    for cache in (stage_fingerprint, fingerprint._module_info):
+    for cache in (stage_fingerprint, fingerprint._module_info, fingerprint._project_file,
+                  fingerprint._project_modules):
         cache.cache_clear()
     return stage_fingerprint(module)
 

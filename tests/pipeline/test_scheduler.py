@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import json
 
@@ -393,18 +394,35 @@ def test_return_freed_memory_gives_a_fragmented_heap_back_to_the_os():
 
 def test_return_freed_memory_collects_garbage_only_when_the_worker_has_grown(monkeypatch):
     # A full collection costs tens of ms in a worker that imported the grasp library: after the first task it
-    # runs only once the worker stands more than GC_MARGIN above its settled size.
+    # runs only once the worker has grown more than GC_MARGIN since its last collection.
+    margin = worker.GC_MARGIN
     collections = []
-    sizes = iter([500, 400, 420, 400 + worker.GC_MARGIN + 1, 410])
-    monkeypatch.setattr(worker, "_settled_rss", None)
+    # resident size read after each trim, and again after each collection
+    sizes = iter([500, 400, 420, 400 + margin + 1, 400 + margin, 400 + margin + 10, 400 + 2 * margin + 1, 450])
+    monkeypatch.setattr(worker, "_collect_above", None)
     monkeypatch.setattr(worker, "resident_bytes", lambda: next(sizes))
     monkeypatch.setattr(worker.gc, "collect", lambda: collections.append(1))
-    return_freed_memory()  # first task: collects, settles at 400
-    assert len(collections) == 1 and worker._settled_rss == 400
+    return_freed_memory()  # first task: collects, 400 after it
+    assert len(collections) == 1
     return_freed_memory()  # 420: within the margin, no collection
     assert len(collections) == 1
-    return_freed_memory()  # grown past the margin: collects
-    assert len(collections) == 2 and worker._settled_rss == 400
+    return_freed_memory()  # grown past the margin: collects, and the worker stays at 400 + margin (live memory)
+    assert len(collections) == 2
+    return_freed_memory()  # 10 bytes above that: not collected again after every task
+    assert len(collections) == 2
+    return_freed_memory()  # a margin above the size after the last collection: collects
+    assert len(collections) == 3
+    assert next(sizes, None) is None
+
+
+def test_return_freed_memory_collects_every_task_where_the_size_is_unknown(monkeypatch):
+    collections = []
+    monkeypatch.setattr(worker, "_collect_above", None)
+    monkeypatch.setattr(worker, "resident_bytes", lambda: None)
+    monkeypatch.setattr(worker.gc, "collect", lambda: collections.append(1))
+    for _ in range(3):
+        return_freed_memory()
+    assert len(collections) == 3
 
 
 def test_resident_bytes_reads_this_process():
@@ -435,3 +453,162 @@ def test_toy_count_and_work_ms_give_the_engine_benchmark_its_tasks(tmp_path):
     plain = tmp_path / "plain"
     run_pipeline(TOY, config(plain, "run.jobs=1"))
     assert all(e.meta == {"n": 5} for e in Manifest(stage_dir(plain, "numbers")).entries().values())
+
+
+class _Checked:
+    """Mix-in: a toy stage whose :meth:`check` records its name, and fails while ``failing`` names it."""
+
+    calls: list[str] = []
+    failing: set[str] = set()
+
+    def check(self, params):
+        _Checked.calls.append(self.name)
+        if self.name in _Checked.failing:
+            raise StageError(f"{self.name}: cannot run here")
+
+
+class _CheckedNumbers(_Checked, type(TOY.stage("numbers"))):
+    pass
+
+
+class _CheckedSums(_Checked, type(TOY.stage("sums"))):
+    pass
+
+
+CHECKED_TOY = dataclasses.replace(TOY, stages=(_CheckedSums(), _CheckedNumbers()))
+
+
+def test_stages_are_checked_before_the_first_task_and_only_when_they_may_run(tmp_path, monkeypatch):
+    monkeypatch.setattr(_Checked, "calls", [])
+    monkeypatch.setattr(_Checked, "failing", {"sums"})
+    out = tmp_path / "o"
+    # sums (a later wave) cannot run: the run stops before numbers, the first wave, runs any task
+    with pytest.raises(StageError, match="sums: cannot run here"):
+        run_pipeline(CHECKED_TOY, config(out, "run.jobs=1"))
+    assert _Checked.calls == ["numbers", "sums"]
+    assert Manifest(stage_dir(out, "numbers")).entries() == {}
+    _Checked.failing = set()
+    _Checked.calls.clear()
+    run_pipeline(CHECKED_TOY, config(out, "run.jobs=1"))
+    assert _Checked.calls == ["numbers", "sums"]  # each once, however many waves
+    # nothing to do: no stage runs, none is checked (not even a failing one)
+    _Checked.failing = {"numbers", "sums"}
+    _Checked.calls.clear()
+    again = by_stage(run_pipeline(CHECKED_TOY, config(out, "run.jobs=1")))
+    assert _Checked.calls == [] and again["numbers"].skipped == 4 and again["sums"].skipped == 1
+    # only sums has work (its params changed): numbers, planned complete, is not checked
+    _Checked.calls.clear()
+    with pytest.raises(StageError, match="sums: cannot run here"):
+        run_pipeline(CHECKED_TOY, config(out, "run.jobs=1", "sums.scale=3"))
+    assert _Checked.calls == ["sums"]
+
+
+def test_a_shared_view_is_unpickled_once_per_worker_and_gives_each_task_its_subset(tmp_path, monkeypatch):
+    import pickle
+
+    from pipeline.stage import Upstream
+    from pipeline.store import Entry
+
+    entries = {
+        "objects": {f"o{i}": Entry(key=f"k{i}", task=f"o{i}", status="ok", file=f"k{i}.h5", meta={"i": i})
+                    for i in range(50)},
+        "scenes": {"s0": Entry(key="ks", task="s0", status="ok", file="ks.h5")},
+    }
+    view = worker.SharedView(tmp_path, entries)
+    loads = []
+    real = pickle.loads
+    monkeypatch.setattr(worker.pickle, "loads", lambda data: loads.append(1) or real(data))
+    monkeypatch.setattr(worker, "_views", type(worker._views)())
+    plain = Upstream(tmp_path, entries)
+    for needs in ({"scenes": ["s0"], "objects": ["o3", "o7"]}, None, {"objects": sorted(entries["objects"])}):
+        shipped = pickle.loads(pickle.dumps(view.task_view(needs)))  # as a worker receives it
+        got, want = shipped.upstream(), plain.subset(needs)
+        assert got.stages() == want.stages()
+        for stage in want.stages():
+            assert [got.entry(stage, t) for t in got.ids(stage)] == [want.entry(stage, t) for t in want.ids(stage)]
+            assert [got.path(stage, t) for t in got.ids(stage)] == [want.path(stage, t) for t in want.ids(stage)]
+    assert len(loads) == 3 + 1  # the three task views, and the shared entries once
+    # a worker keeps a bounded number of views
+    for _ in range(worker.VIEWS_KEPT + 3):
+        worker.SharedView(tmp_path, entries).task_view(None).upstream()
+    assert len(worker._views) == worker.VIEWS_KEPT
+
+
+def test_a_task_whose_view_cannot_be_built_fails_alone(tmp_path):
+    from pipeline.plan import PlannedTask
+    from pipeline.stage import RunContext
+
+    view = worker.SharedView(tmp_path, {"numbers": {}})
+    stage = TOY.stage("sums")
+    planned = PlannedTask(Task(id="total"), key="ab" * 32, parts={}, seed="cd" * 32)
+    entry = worker.execute_task(stage, planned, None, view.task_view({"numbers": ["gone"]}), tmp_path,
+                                RunContext(tmp_path, tmp_path))
+    assert entry.status == "failed" and "gone" in entry.error
+
+
+def test_shards_checked_side_by_side_are_judged_by_their_bytes_even_with_their_mtime_kept(tmp_path):
+    import os
+
+    from pipeline.plan import check_shards, one_check_per_shard, shard_ok
+
+    out = tmp_path / "o"
+    cfg = config(out, "run.jobs=1", "numbers.ids=[a, b, c, d, e, f, g, h]")
+    run_pipeline(TOY, cfg)
+    manifest = Manifest(stage_dir(out, "numbers"))
+    entries = manifest.entries()
+    damaged = {e.key for e in entries.values() if e.task in ("b", "g")}
+    for key in damaged:
+        path = manifest.stage_dir / entries[key].file
+        st = path.stat()
+        flip_byte(path)
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))  # same size, same mtime: only the bytes tell
+    with one_check_per_shard():
+        check_shards(manifest, entries.values())
+        side_by_side = {k: shard_ok(manifest, e) for k, e in entries.items()}
+    one_by_one = {k: manifest.shard_ok(e) for k, e in entries.items()}
+    assert side_by_side == one_by_one == {k: k not in damaged for k in entries}
+    st = {s.stage: s for s in status(TOY, cfg)}
+    assert (st["numbers"].done, st["numbers"].missing) == (6, 2)
+    assert by_stage(run_pipeline(TOY, cfg))["numbers"].ran == 2
+
+
+def test_own_workers_get_the_shared_view_and_a_cluster_a_plain_upstream(tmp_path):
+    import joblib
+
+    from pipeline import scheduler
+    from pipeline.stage import Upstream
+
+    out = tmp_path / "o"
+    run_pipeline(TOY, config(out, "run.jobs=1"))
+    sums = TOY.stage("sums")
+    r = scheduler._start_stage(sums, sums.params(config(out)), out, False, {"numbers": set(
+        Manifest(stage_dir(out, "numbers")).entries())})
+    (planned,) = r.planned
+    with joblib.parallel_config(backend="loky"):
+        assert isinstance(r.shipped(planned, scheduler._own_workers()), worker.TaskView)
+    with joblib.parallel_config(backend="threading"):  # stands for dask and ray: not processes of this run
+        plain = r.shipped(planned, scheduler._own_workers())
+    assert type(plain) is Upstream
+    via_view = r.shipped(planned, True).upstream()
+    assert [plain.path("numbers", t) for t in plain.ids("numbers")] == [
+        via_view.path("numbers", t) for t in via_view.ids("numbers")] and len(plain.ids("numbers")) == 4
+
+
+def test_a_manifest_is_parsed_once_while_it_stays_the_same_file(tmp_path, monkeypatch):
+    from pipeline.plan import one_check_per_shard, read_entries
+    from pipeline.store import Entry
+
+    out = tmp_path / "o"
+    run_pipeline(TOY, config(out, "run.jobs=1"))
+    manifest = Manifest(stage_dir(out, "numbers"))
+    parses = []
+    real = Manifest.entries
+    monkeypatch.setattr(Manifest, "entries", lambda self: parses.append(1) or real(self))
+    with one_check_per_shard():
+        first = read_entries(manifest)
+        again = read_entries(manifest)
+        assert again == first and again is not first and len(parses) == 1
+        manifest.append(Entry(key="f" * 64, task="late", status="failed", error="x"))  # a commit: the file grows
+        grown = read_entries(manifest)
+        assert len(parses) == 2 and set(grown) == set(first) | {"f" * 64}
+    assert read_entries(manifest) == grown and len(parses) == 3  # outside a run: read every time
