@@ -14,9 +14,10 @@ Each preparation runs in a fresh child process (``OMP_NUM_THREADS=1``: one core)
 the decomposition, not a cache hit), under a CPU-time cap (``RLIMIT_CPU``; a wall cap, by default 20x, as a
 backstop): a mesh over either is reported as ``>`` the CPU seconds it had used when stopped. Reported per mesh: CPU
 seconds (``time.process_time`` of the child), wall seconds, the seconds of each step (load+repair+units+mass,
-decomposition, stable poses), the parts and the way the decomposition was made; then median, p90 and worst CPU
-seconds, overall and per category. ``--profile``
-writes a cProfile of each child (``<out>.prof/<file>.prof``). Run one at a time, ``nice -n 5``.
+decomposition, stable poses), the parts, the way the decomposition was made and the parts' hull slack (p95 and max
+mm, :func:`graspgen.geometry.convex.hull_slack`, 20,000 samples, measured after the clock stopped) and the sha256 of
+the parts' bytes; then median, p90 and worst CPU seconds, overall and per category, and the worst slack p95.
+``--profile`` writes a cProfile of each child (``<out>.prof/<file>.prof``). Run one at a time, ``nice -n 5``.
 
 Run: ``python -m bench.bench_prep [--mode pipeline,evaluate] [--distinct] [--per-category N] [--cap 300]
 [--only mug,bowl] [--out FILE]``; ``--distinct`` takes one file per mesh (the set holds some meshes at several
@@ -125,7 +126,25 @@ def child(mesh: str, scale: float, mode: str, profile: str | None) -> dict:
     steps["other"] = cpu - steps["decomposition"] - steps["stable_poses"]
     return {"cpu_s": cpu, "wall_s": wall, "steps_s": steps, "parts": len(prepared.convex_parts),
             "faces": int(len(prepared.faces)), "poses": int(len(prepared.stable_probabilities)),
-            "log": ways[-3:]}
+            "log": ways[-3:], **_slack(prepared)}
+
+
+def _slack(prepared) -> dict:
+    """Hull slack of the parts (mm; 20,000 samples, seed 0), measured after the clock stopped, and the sha256 of
+    the parts' bytes (the same digest before and after a change: the same parts)."""
+    import hashlib
+
+    import trimesh
+
+    from graspgen.geometry.convex import hull_slack
+
+    mesh = trimesh.Trimesh(prepared.vertices, prepared.faces, process=False)
+    slack = hull_slack(mesh, list(prepared.convex_parts), 20_000, np.random.default_rng(0))
+    digest = hashlib.sha256()
+    for vertices, faces in prepared.convex_parts:
+        digest.update(np.ascontiguousarray(vertices).tobytes() + np.ascontiguousarray(faces).tobytes())
+    return {"slack_p95_mm": 1e3 * slack.p95, "slack_max_mm": 1e3 * slack.max, "short_p95_mm": 1e3 * slack.short_p95,
+            "parts_sha256": digest.hexdigest()}
 
 
 def run_one(entry: dict, mode: str, cap: float, wall_cap: float, profile: str | None) -> dict:
@@ -161,6 +180,8 @@ def summary(rows: list[dict], cap: float) -> dict:
         t = np.array([cap if r["cpu_s"] is None else r["cpu_s"] for r in sub])
         return {"n": len(sub), "median_s": float(np.median(t)), "p90_s": float(np.percentile(t, 90)),
                 "worst_s": float(t.max()), "capped": sum(r["cpu_s"] is None for r in sub),
+                "worst_slack_p95_mm": max((r["slack_p95_mm"] for r in sub if "slack_p95_mm" in r), default=None),
+                "over_1mm": sum(r.get("slack_p95_mm", 0.0) > 1.0 for r in sub),
                 "total_s": float(t.sum())}
     out = {"all": stats(rows)}
     for cat in sorted({r["category"] for r in rows}):
@@ -209,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
             steps = row.get("steps_s", {})
             print(f"{mode:>8} {entry['file'][:48]:48} cpu {shown:>6} s  wall {row['wall_s']:6.1f} s  "
                   f"decomp {steps.get('decomposition', 0):6.1f}  poses {steps.get('stable_poses', 0):5.1f}  "
-                  f"parts {row.get('parts', '-')}  {row.get('error') or ''}", flush=True)
+                  f"parts {row.get('parts', '-')}  slack p95 {row.get('slack_p95_mm', float('nan')):.2f} mm  "
+                  f"{row.get('error') or ''}", flush=True)
             report["rows"] = sorted(known.values(), key=lambda r: (r["mode"], r["file"]))
             args.out.write_text(json.dumps(report, indent=1))
     report["cap_s"] = args.cap
@@ -220,11 +242,13 @@ def main(argv: list[str] | None = None) -> int:
     args.out.write_text(json.dumps(report, indent=1))
     for mode in modes:
         print(f"\n{mode}: CPU s per mesh (capped at {args.cap:.0f} s; a capped mesh counts as the cap)")
-        print("| category | n | median | p90 | worst | capped |")
-        print("| --- | ---: | ---: | ---: | ---: | ---: |")
+        print("| category | n | median | p90 | worst | capped | worst slack p95 mm | p95 > 1 mm |")
+        print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
         for cat, s in report["summary"][mode].items():
             print(f"| {cat} | {s['n']} | {s['median_s']:.1f} | {s['p90_s']:.1f} | "
-                  f"{'>' if s['capped'] else ''}{s['worst_s']:.1f} | {s['capped']} |")
+                  f"{'>' if s['capped'] else ''}{s['worst_s']:.1f} | {s['capped']} | "
+                  f"{'-' if s['worst_slack_p95_mm'] is None else format(s['worst_slack_p95_mm'], '.2f')} | "
+                  f"{s['over_1mm']} |")
     return 0
 
 

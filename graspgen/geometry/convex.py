@@ -4,8 +4,9 @@
 (f, 3) int32)`` in the mesh frame. Decompositions can be cached on disk as ``coacd-<sha256>.npz``, keyed by the
 mesh bytes, the :class:`CoacdParams` and the CoACD version.
 
-:func:`hull_slack` measures how far the union of the parts reaches beyond the true surface (what MuJoCo collides
-with that the mesh does not have), to choose CoACD settings by (``studies/hull_slack.py``).
+:func:`hull_slack` (:mod:`graspgen.geometry.slack`, re-exported here) measures how far the union of the parts reaches
+beyond the true surface (what MuJoCo collides with that the mesh does not have), to choose CoACD settings by
+(``studies/hull_slack.py``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import trimesh
 from scipy.spatial import QhullError
 
 from graspgen.geometry.mesh_io import _check_mesh, _label
+from graspgen.geometry.slack import HullSlack, hull_slack, outward_slack_p95
 from graspgen.validation import check, check_choice, check_instance, check_number, check_positive_int
 
 __all__ = ["CoacdParams", "HullSlack", "cached_convex_decomposition", "coacd_cache_key", "convex_decomposition",
@@ -54,10 +56,12 @@ def _is_int(value: object) -> bool:
 
 @dataclass(frozen=True)
 class CoacdParams:
-    """Settings of the CoACD convex decomposition (passed straight to ``coacd.run_coacd``)."""
+    """Settings of the CoACD convex decomposition (passed straight to ``coacd.run_coacd``). The defaults are the
+    objects stage's; ``gen evaluate`` uses :data:`graspgen.workflows.evaluate_settings.CHEAP_COACD`."""
 
     threshold: float = 0.08
-    """Concavity threshold, dimensionless in (0, 1]: lower gives more, tighter parts."""
+    """Concavity threshold, dimensionless in (0, 1], relative to half the mesh's largest extent (CoACD normalises
+    the mesh to its bounding box): lower gives more, tighter parts."""
 
     max_convex_hull: int = 16
     """Upper bound on the number of parts; -1 means no limit."""
@@ -66,16 +70,22 @@ class CoacdParams:
     """Voxel resolution (cells per axis) of the manifold pre-processing of non-watertight input."""
 
     resolution: int = 1000
-    """Number of surface samples CoACD uses to measure concavity."""
+    """Number of surface samples CoACD uses to measure concavity (CoACD takes at least 1000 where it scales them by
+    area, so fewer saves little)."""
 
-    mcts_iterations: int = 50
-    """Monte-Carlo tree search iterations per cut."""
+    mcts_iterations: int = 20
+    """Monte-Carlo tree search iterations per cut: CoACD's search budget, which its time is about proportional to.
+    20 of ``mcts_nodes`` 10 since issue 24 (50 of 20 before), judged by the hull-slack criterion on 17
+    ../shared/learn meshes (``bench/bench_prep.py`` reports each mesh's p95 slack beside its time): as many meshes
+    meet ``slack_p95`` as before (per mesh the randomised search moves p95 both ways, -0.5 to +1.4 mm), at 35-40 %
+    less CoACD time on the refined bowls and 11 % less in all."""
 
     mcts_depth: int = 3
     """Maximum depth of the Monte-Carlo tree search (cuts looked ahead)."""
 
-    mcts_nodes: int = 20
-    """Child nodes expanded per Monte-Carlo tree search node."""
+    mcts_nodes: int = 10
+    """Child nodes expanded per Monte-Carlo tree search node (candidate cutting planes); 10 since issue 24 (20
+    before), with ``mcts_iterations``."""
 
     seed: int = 0
     """CoACD's own random seed; the decomposition is a pure function of mesh, settings and this seed."""
@@ -209,7 +219,7 @@ def _near_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdPara
 
 def _slack_p95(mesh: trimesh.Trimesh, parts: list[tuple[np.ndarray, np.ndarray]], params: CoacdParams) -> float:
     """p95 hull slack (m) of the parts, from a generator seeded by the settings (the same parts: the same value)."""
-    return hull_slack(mesh, parts, params.slack_samples, np.random.default_rng(params.seed)).p95
+    return outward_slack_p95(mesh, parts, params.slack_samples, np.random.default_rng(params.seed))
 
 
 def _volume_excess(mesh: trimesh.Trimesh, parts: list[trimesh.Trimesh]) -> float:
@@ -271,190 +281,6 @@ def _part_arrays(part: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
         np.ascontiguousarray(part.vertices, dtype=np.float64),
         np.ascontiguousarray(part.faces, dtype=np.int32),
     )
-
-
-@dataclass(frozen=True)
-class HullSlack:
-    """How far a union of convex parts and a mesh's surface stand out of each other (:func:`hull_slack`), m."""
-
-    max: float
-    """Largest distance from the mesh of a point of the union's boundary outside the mesh (sampled points and the
-    parts' vertices); 0 when the whole boundary is on or inside the mesh."""
-    p95: float
-    """95th percentile of that distance over the union's boundary, area-weighted (points on or inside the mesh
-    count as 0): 5 % of the boundary area stands further out than this."""
-    short_max: float
-    """The other way round: largest distance from the union of a point of the mesh's surface outside every part
-    (sampled points and the mesh's vertices), i.e. how far the parts fall short of the surface; 0 when they
-    cover it."""
-    short_p95: float
-    """95th percentile of that distance over the mesh's surface, area-weighted (covered points count as 0)."""
-    samples: int
-    """Boundary points ``p95`` is taken over (area samples left after dropping those buried in another part)."""
-
-
-_SLACK_STEP = 1e-5
-"""Step (m) off a part's face used to tell the union's boundary from faces buried in another part (10 um: far below
-any slack that matters, far above float round-off at object scale)."""
-
-_INSIDE_TOLERANCE = 1e-9
-"""How far (m) inside a part a point must be to count as inside it: a vertex of one part lying on a face of
-another is on the boundary, whatever the round-off."""
-
-
-def hull_slack(
-    mesh: trimesh.Trimesh,
-    convex_parts: list[tuple[np.ndarray, np.ndarray]] | tuple[tuple[np.ndarray, np.ndarray], ...],
-    n_samples: int,
-    rng: np.random.Generator,
-) -> HullSlack:
-    """How far the union of ``convex_parts`` extends beyond the surface of ``mesh`` (and falls short of it).
-
-    MuJoCo collides the parts, not the mesh, so wherever the union stands out of the mesh a gripper touches what
-    is not there (a coarse hull thickening a thin wall, or bridging a cavity). Measured on the union's boundary,
-    the surface a gripper coming from outside meets first: ``n_samples`` points are drawn uniformly by area over
-    all the parts' faces (``rng``), and a point is dropped when a step of 10 um along its face's outward normal
-    lands strictly inside another part (that face is buried in the union, e.g. the cut between two parts). Each
-    kept point's slack is its unsigned distance to the mesh surface if it lies outside the mesh, else 0; inside
-    vs outside by the generalised winding number of the mesh (robust also for a mesh with small holes). The
-    maximum also takes the parts' vertices that are on the boundary (a hull's corners are where it usually stands
-    out furthest); the 95th percentile is over the area samples only. The maximum of a sample falls short of the
-    true one by up to about the samples' spacing where the farthest point is not a vertex (the middle of a hull's
-    face bridging a cavity).
-
-    The converse (``short_*``): ``n_samples`` points drawn by area over the mesh's surface, with its vertices for
-    the maximum; a point inside a part is covered (0), else its distance to the union is its distance to the
-    nearest part's surface. Parts falling short let a finger into the object by that much. (Gaps between parts
-    deep inside the object do not count: they are not on the surface.)
-
-    Parameters
-    ----------
-    mesh
-        The true surface (m), e.g. the repaired mesh the parts were made from.
-    convex_parts
-        ``(vertices (v, 3), faces (f, 3))`` per part, outward-wound convex hulls (:func:`convex_decomposition`).
-    n_samples
-        Area samples over all parts, and as many over the mesh (e.g. 20,000: the percentiles' sampling error is
-        then well below 0.1 mm on objects of grasping size).
-    rng
-        Random generator of the sample points.
-
-    Returns
-    -------
-    HullSlack
-    """
-    _check_mesh(mesh, "mesh")
-    check_positive_int("n_samples", n_samples)
-    check("convex_parts", len(convex_parts) > 0, "hold at least one part", len(convex_parts))
-    parts = [(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)) for v, f in convex_parts]
-    planes = [_face_planes(v, f) for v, f in parts]
-
-    tri = np.concatenate([v[f] for v, f in parts])  # (F, 3, 3) all the parts' triangles
-    owner = np.concatenate([np.full(len(f), i) for i, (_, f) in enumerate(parts)])
-    normal = np.concatenate([n for n, _ in planes])
-    points, pick = _area_samples(tri, n_samples, rng)
-    keep = ~_inside_parts(points + _SLACK_STEP * normal[pick], planes, owner[pick])
-    points = points[keep]
-    corners = np.concatenate([v for v, _ in parts])
-    corner_owner = np.concatenate([np.full(len(v), i) for i, (v, _) in enumerate(parts)])
-    corners = corners[~_inside_parts(corners, planes, corner_owner)]
-    slack = np.maximum(_outside_distance(mesh, np.concatenate([points, corners])), 0.0)
-
-    surface, _ = _area_samples(np.asarray(mesh.triangles, dtype=np.float64), n_samples, rng)
-    surface = np.concatenate([surface, np.asarray(mesh.vertices, dtype=np.float64)])
-    short = np.zeros(len(surface))
-    bare = np.flatnonzero(~_inside_parts(surface, planes, None, tolerance=-_INSIDE_TOLERANCE))
-    if len(bare):  # outside every part: the distance to the union is the distance to the nearest part's surface
-        union = trimesh.Trimesh(tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3), process=False)
-        short[bare] = _surface_distance(union, surface[bare])
-
-    return HullSlack(
-        max=float(np.max(slack, initial=0.0)),
-        p95=float(np.percentile(slack[: len(points)], 95)) if len(points) else 0.0,
-        short_max=float(np.max(short, initial=0.0)),
-        short_p95=float(np.percentile(short[:n_samples], 95)),
-        samples=int(len(points)),
-    )
-
-
-def _area_samples(tri: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` points uniform by area on the triangles ``(F, 3, 3)``, and the triangle of each."""
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    pick = rng.choice(len(tri), size=n, p=area / area.sum())
-    u, w = rng.random(n), rng.random(n)
-    flip = u + w > 1.0
-    u[flip], w[flip] = 1.0 - u[flip], 1.0 - w[flip]
-    t = tri[pick]
-    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + w[:, None] * (t[:, 2] - t[:, 0]), pick
-
-
-def _face_planes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit outward normals (f, 3) and offsets (f,) of a convex part's faces: inside is ``n . x < d``. A face of no
-    area has no plane; it is given its neighbours' (a normal of 0 would make every point lie on it)."""
-    t = vertices[faces]
-    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    length = np.linalg.norm(n, axis=1)
-    flat = length <= 1e-300
-    if flat.all():  # no area: nothing is inside it
-        return np.zeros((len(faces), 3)), np.full(len(faces), -np.inf)
-    n = n / np.where(flat, 1.0, length)[:, None]
-    n[flat] = n[~flat][0]  # a duplicate of a real plane: a no-op in the max
-    d = np.einsum("ij,ij->i", n, t[:, 0])
-    d[flat] = d[~flat][0]
-    return n, d
-
-
-def _inside_parts(points: np.ndarray, planes: list[tuple[np.ndarray, np.ndarray]], owner: np.ndarray | None,
-                  tolerance: float = _INSIDE_TOLERANCE) -> np.ndarray:
-    """Whether each point lies inside some part by more than ``tolerance`` (a negative one: within it of a part),
-    not counting its own part (``owner``; None: any part counts)."""
-    inside = np.zeros(len(points), dtype=bool)
-    for j, (n, d) in enumerate(planes):
-        others = np.ones(len(points), dtype=bool) if owner is None else owner != j
-        if others.any():
-            inside[others] |= np.max(points[others] @ n.T - d, axis=1) < -tolerance
-    return inside
-
-
-def _outside_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Distance of each point from the mesh surface, positive outside the mesh, negative inside."""
-    distance = _surface_distance(mesh, points)
-    off = np.flatnonzero(distance > 1e-9)  # on the surface the sign does not matter
-    inside = np.abs(_winding_number(mesh, points[off])) > 0.5
-    distance[off[inside]] *= -1.0
-    return distance
-
-
-def _surface_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Unsigned distance of each point from the mesh surface (exact: the nearest of the candidate triangles).
-
-    Not ``trimesh.proximity.closest_point``: it treats two candidates whose *squared* distances differ by less than
-    1e-8 as a tie and may keep the farther one, which at millimetres (squared: 1e-6 m^2) is an error of percents.
-    """
-    candidates = trimesh.proximity.nearby_faces(mesh, points)  # a superset of each point's nearest triangles
-    counts = np.array([len(c) for c in candidates])
-    which = np.concatenate(candidates).astype(np.int64)
-    query = np.repeat(points, counts, axis=0)
-    nearest = trimesh.triangles.closest_point(np.asarray(mesh.triangles)[which], query)
-    squared = np.einsum("ij,ij->i", query - nearest, query - nearest)
-    return np.sqrt(np.minimum.reduceat(squared, np.concatenate([[0], np.cumsum(counts)[:-1]])))
-
-
-def _winding_number(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Generalised winding number of the mesh at each point (1 inside a closed outward-wound mesh, 0 outside;
-    Van Oosterom and Strackee's solid angle of each triangle, summed; chunked to bound memory)."""
-    tri = np.asarray(mesh.triangles, dtype=np.float64)
-    out = np.empty(len(points))
-    chunk = max(1, 200_000 // max(len(tri), 1))
-    for start in range(0, len(points), chunk):
-        p = points[start:start + chunk]
-        a, b, c = (tri[None, :, k, :] - p[:, None, :] for k in range(3))
-        la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
-        det = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
-        den = (la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc + np.einsum("pfi,pfi->pf", b, c) * la
-               + np.einsum("pfi,pfi->pf", c, a) * lb)
-        out[start:start + chunk] = np.arctan2(det, den).sum(axis=1) / (2.0 * np.pi)
-    return out
 
 
 def coacd_cache_key(mesh: trimesh.Trimesh, params: CoacdParams) -> str:

@@ -1,0 +1,62 @@
+"""Tests of graspgen.geometry.slack's shortcuts: the bounding-box test in front of each part's planes gives the same
+inside/outside answer as testing every plane, and ``outward_slack_p95`` is ``hull_slack(...).p95`` for the same
+generator state. Parts are cut from a cup's and an L-shape's surface inline; no CoACD run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from graspgen.geometry import slack
+from graspgen.geometry.convex import hull_slack
+from graspgen.geometry.slack import outward_slack_p95
+from tests.shapes import l_shape
+
+
+def sliced_parts(mesh: trimesh.Trimesh, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The convex hulls of ``count`` slabs of the mesh's surface points along x (overlapping by a tenth of a slab):
+    convex parts that cover the surface, bridge its concavities and overlap their neighbours."""
+    points = mesh.sample(8000, seed=1) if hasattr(mesh, "sample") else None
+    points = np.concatenate([points, mesh.vertices])
+    low, high = points[:, 0].min(), points[:, 0].max()
+    width = (high - low) / count
+    out = []
+    for k in range(count):
+        inside = np.abs(points[:, 0] - (low + (k + 0.5) * width)) <= 0.55 * width
+        hull = trimesh.convex.convex_hull(points[inside])
+        out.append((np.asarray(hull.vertices), np.asarray(hull.faces)))
+    return out
+
+
+def brute_inside(points, union, owner, tolerance):
+    """Every point against every other part's planes, no shortcut (the definition)."""
+    inside = np.zeros(len(points), dtype=bool)
+    for j, (n, d) in enumerate(union.planes):
+        others = np.ones(len(points), dtype=bool) if owner is None else owner != j
+        inside[others] |= np.max(points[others] @ n.T - d, axis=1) < -tolerance
+    return inside
+
+
+@pytest.mark.parametrize("tolerance", [slack._INSIDE_TOLERANCE, -slack._INSIDE_TOLERANCE])
+def test_box_prefilter_answers_as_every_plane(tolerance):
+    mesh = l_shape()
+    union = slack._Union.of(sliced_parts(mesh, 6))
+    rng = np.random.default_rng(2)
+    low, high = mesh.bounds
+    points = np.concatenate([rng.uniform(low - 0.01, high + 0.01, size=(4000, 3)),
+                             np.concatenate([v for v, _ in union.parts])])  # the corners: on a face of their own
+    owner = rng.integers(0, len(union.parts), size=len(points))
+    for who in (owner, None):
+        fast = slack._inside_parts(points, union, who, tolerance=tolerance)
+        np.testing.assert_array_equal(fast, brute_inside(points, union, who, tolerance))
+    assert 0 < fast.sum() < len(points)  # both answers occur
+
+
+@pytest.mark.parametrize("count", [1, 5])
+def test_outward_p95_is_hull_slack_p95(count):
+    mesh = l_shape()
+    parts = sliced_parts(mesh, count)
+    full = hull_slack(mesh, parts, 3000, np.random.default_rng(5))
+    assert outward_slack_p95(mesh, parts, 3000, np.random.default_rng(5)) == full.p95
+    assert full.p95 > 1e-3  # the parts bridge the L's inner corner: a real value, not 0 == 0
