@@ -6,7 +6,10 @@ under that name), and ``N / 4`` scenes, each a real scene's shards (scenes, gras
 placed_grasps, the last cut to ``4 * --grasps`` rows) under a new scene id; the real objects stay in the library
 (the scene grasps name them). Shards and entries are written with the real schemas, so the stage reads them as the
 engine's. Each measured step runs in a child process of its own and reports the high-water mark of its resident
-memory (``VmHWM``), the resident memory after its imports, and CPU and wall seconds:
+memory (``VmHWM``), the resident memory after its imports, and CPU and wall seconds (and, for ``tasks`` and
+``publish``, ``upstream_mb``: what the run's manifest entries take, held as the engine holds them -- the ``gen run``
+process with each stage's key-part strings shared, a worker's view without key parts; they grow with the tasks,
+~1 kB each, and belong to the engine, not to the stage):
 
 - ``tasks``: the stage's three tasks (object_grasps.parquet, placed_grasps.parquet, grasps.parquet shards);
 - ``publish``: :meth:`stages.dataset.DatasetStage.publish` (links, card, plots, ACRONYM and GraspGen exports unless
@@ -15,11 +18,17 @@ memory (``VmHWM``), the resident memory after its imports, and CPU and wall seco
 - ``read``: ``open_dataset``, the first object's set (``object_grasps(name)`` where the reader has it) and one
   scene's grasps.
 
+``--card-rows N ...`` measures the card alone (``card``: :func:`graspgen.io.card_stats.card_stats` and the plots
+but the examples) on a synthetic ``grasps.parquet`` of N rows (scenes of 128 grasps, row groups of 16,384 rows, the
+columns the card reads: ids, outcome, robustness and pfc of 10 copies on successes, a continuous epsilon, a friction
+grid), so the label statistics are measured at sizes the scene shards of ``--src`` do not reach (ACRONYM: 17.7M).
+
 ``--code DIR`` runs the children on another checkout (e.g. the code before a change): ``PYTHONPATH=DIR``.
 
 Usage::
 
     python -m bench.bench_dataset_memory --src out --work /tmp/bench --objects 100 1000
+    python -m bench.bench_dataset_memory --work /tmp/bench --objects --card-rows 250000 1000000 4000000
 """
 
 from __future__ import annotations
@@ -126,6 +135,56 @@ def build(src: Path, out: Path, n: int, grasps: int) -> None:
     (out / "entries.json").write_text(json.dumps(entries))
 
 
+CARD_GROUP_ROWS = 16384
+CARD_SCENE_ROWS = 128
+
+
+def build_card_table(out: Path, rows: int) -> None:
+    """``out/grasps.parquet``: ``rows`` synthetic rows of the columns the card reads (module docstring)."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    path = out / "grasps.parquet"
+    if path.is_file():
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    writer = None
+    for start in range(0, rows, CARD_GROUP_ROWS):
+        n = min(CARD_GROUP_ROWS, rows - start)
+        rng = np.random.default_rng(start)
+        row = np.arange(start, start + n)
+        outcome = rng.integers(0, 6, n).astype(np.int8)
+        ok = outcome == 5
+        epsilon = np.where(rng.random(n) < 0.2, 0.0, rng.gamma(2.0, 0.02, n))
+        epsilon[rng.random(n) < 0.05] = np.nan
+        t = pa.table({
+            "scene_id": pa.array([f"scene_{s:07d}" for s in (row // CARD_SCENE_ROWS).tolist()]),
+            "grasp_id": pa.array(row % CARD_SCENE_ROWS, pa.int32()),
+            "object_name": pa.array([f"obj_{o:04d}" for o in rng.integers(0, 1000, n).tolist()]),
+            "gripper": pa.array(["panda"] * n), "outcome": pa.array(outcome),
+            "robustness": pa.array(np.where(ok, rng.integers(0, 11, n) / 10, np.nan)),
+            "epsilon": pa.array(epsilon), "pfc": pa.array(np.where(ok, rng.integers(0, 11, n) / 10, np.nan)),
+            "min_closure_friction": pa.array(np.where(rng.random(n) < 0.3, np.nan, rng.integers(1, 21, n) / 20)),
+        })
+        if writer is None:
+            writer = pq.ParquetWriter(path, t.schema, compression="zstd", compression_level=3)
+        writer.write_table(t, row_group_size=n)
+    assert writer is not None
+    writer.close()
+
+
+def card_child(out: Path) -> dict:
+    """The card of ``out/grasps.parquet`` and its plots (no examples: the table has no scene files)."""
+    from graspgen.io.card_stats import CardSettings, card_stats
+    from graspgen.viz.plots import draw_plots
+
+    settings = CardSettings(example_scenes=0)
+    stats, table = card_stats(out, {}, settings)
+    draw_plots(out, table, stats, settings)
+    return {"rows": stats["counts"]["grasps"], "sampled": (stats.get("label_sample") or {}).get("sampled")}
+
+
 # ---------------------------------------------------------------------------------------------------------------
 # Children
 # ---------------------------------------------------------------------------------------------------------------
@@ -138,7 +197,10 @@ def _status(key: str) -> int:
     return 0
 
 
-def _upstream(out: Path):
+def _upstream(out: Path, parts: bool):
+    """The run's entries as the engine holds them: in the ``gen run`` process (publish) each stage's repeated
+    key-part strings held once (:func:`pipeline.plan.read_entries`); as shipped to a worker (the tasks) without
+    key parts (the views ``pipeline/scheduler.py`` ships)."""
     from pipeline.stage import Upstream
     from pipeline.store import Entry
 
@@ -146,7 +208,13 @@ def _upstream(out: Path):
     done = out / "dataset_entries.json"
     if done.is_file():
         raw["dataset"] = json.loads(done.read_text())
-    return Upstream(out, {s: {t: Entry(**e) for t, e in by.items()} for s, by in raw.items()})
+    entries = {}
+    for stage, by in raw.items():
+        shared: dict[str, str] = {}
+        entries[stage] = {t: Entry(**{**e, "parts": {sys.intern(k): shared.setdefault(v, v) for k, v in
+                                                      e["parts"].items()} if parts else {}}) for t, e in by.items()}
+    del raw
+    return Upstream(out, entries)
 
 
 def _stage_and_params(src: Path, exports: bool):
@@ -177,7 +245,9 @@ def child(phase: str, src: Path, out: Path, exports: bool) -> dict:
         from pipeline.store import Entry
 
         stage, params = _stage_and_params(src, exports)
-        upstream = _upstream(out)
+        r0 = _status("VmRSS")
+        upstream = _upstream(out, parts=False)
+        extra["upstream_mb"] = (_status("VmRSS") - r0) / 1024
         done = {}
         for task in stage.tasks(params, upstream):
             key = hashlib.sha256(f"bench/dataset/{task.id}".encode()).hexdigest()
@@ -191,12 +261,17 @@ def child(phase: str, src: Path, out: Path, exports: bool) -> dict:
         extra["rows"] = {t: e["meta"].get("rows", e["meta"].get("grasps")) for t, e in done.items()}
     elif phase == "publish":
         stage, params = _stage_and_params(src, exports)
-        stage.publish(params, _upstream(out), out)
+        r0 = _status("VmRSS")
+        upstream = _upstream(out, parts=True)
+        extra["upstream_mb"] = (_status("VmRSS") - r0) / 1024
+        stage.publish(params, upstream, out)
     elif phase == "validate":
         from stages.dataset import validate
 
         problems, checked = validate(out / "dataset")
         extra.update(problems=len(problems), first_problems=problems[:3], files=checked)
+    elif phase == "card":
+        extra.update(card_child(out))
     elif phase == "read":
         ds = open_dataset(out)
         extra["open_s"] = time.perf_counter() - t0
@@ -221,7 +296,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--src", type=Path, default=Path("/work/fresh/out"), help="a real run folder (shards)")
     ap.add_argument("--work", type=Path, required=True, help="where the synthetic run folders go")
-    ap.add_argument("--objects", type=int, nargs="+", default=[100, 1000])
+    ap.add_argument("--objects", type=int, nargs="*", default=[100, 1000])
+    ap.add_argument("--card-rows", type=int, nargs="*", default=[], help="also the card alone on tables of N rows")
     ap.add_argument("--grasps", type=int, default=200, help="grasps per object set")
     ap.add_argument("--code", type=Path, default=None, help="checkout the children run (PYTHONPATH)")
     ap.add_argument("--tag", default="", help="name of this code in the output folders (e.g. before, after)")
@@ -236,6 +312,16 @@ def main() -> None:
     if args.code is not None:
         env["PYTHONPATH"] = str(args.code)
     rows = []
+    for n in args.card_rows:
+        out = args.work / f"card_{n}"
+        build_card_table(out, n)
+        cmd = [sys.executable, __file__, "--work", str(args.work), "--child", "card", str(out)]
+        done = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        if done.returncode:
+            sys.exit(f"card at {n} rows failed:\n{done.stderr[-3000:]}")
+        r = {"objects": n, **json.loads(done.stdout.strip().splitlines()[-1])}
+        rows.append(r)
+        print(json.dumps(r), flush=True)
     for n in args.objects:
         shared = args.work / f"inputs_{n}"
         build(args.src, shared, n, args.grasps)
@@ -252,7 +338,7 @@ def main() -> None:
             r = {"objects": n, **json.loads(done.stdout.strip().splitlines()[-1])}
             rows.append(r)
             print(json.dumps(r), flush=True)
-    print(f"\n{'objects':>7} {'phase':>9} {'peak MB':>8} {'base MB':>8} {'cpu s':>7} {'wall s':>7}")
+    print(f"\n{'N':>7} {'phase':>9} {'peak MB':>8} {'base MB':>8} {'cpu s':>7} {'wall s':>7}")
     for r in rows:
         print(f"{r['objects']:>7} {r['phase']:>9} {r['peak_mb']:>8.1f} {r['base_mb']:>8.1f} {r['cpu_s']:>7.2f} "
               f"{r['wall_s']:>7.2f}")

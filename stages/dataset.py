@@ -13,7 +13,9 @@ the footer stays small with many scenes (one row group per scene would make it g
 are read one scene at a time, in scene id order, and written as row groups fill
 (:class:`graspgen.io.row_groups.GroupedParquetWriter`): the task holds one row group, not the table, and so do the
 object-set tasks (one shard at a time, by task id). The card's statistics are running counts over the published
-files' row groups (:mod:`graspgen.io.card_tally`) and ``gen validate`` checks the table one row group at a time.
+files' row groups (:mod:`graspgen.io.card_tally`), its label figures exact up to a cap of rows and past it streamed
+or taken from a deterministic sample, as the card says (:mod:`graspgen.io.card_labels`), and ``gen validate`` checks
+the table one row group at a time.
 
 After the task has been committed, :meth:`DatasetStage.publish` lays out ``OUT/dataset/`` (each file atomically;
 shards as hard links, copies where links are not possible)::

@@ -7,8 +7,9 @@ with its mesh as ``acronym/meshes/<object>.obj`` (the file layout and frames: :m
 * :func:`export_acronym`: the scene-bound grasps of ``grasps.parquet`` (success = the table-top rollout's outcome 5),
   in each object's mesh frame.
 
-Both read their table one object at a time (:func:`graspgen.io.row_groups.objects_of_table` for the sorted object
-sets) and write each file atomically.
+Both read their table one object at a time (:func:`graspgen.io.row_groups.objects_of_table`: the sorted object sets
+one row group at a time, grasps.parquet, sorted by scene, in passes of a batch of objects each) and write each file
+atomically.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from graspgen.io.acronym import FIRM_COLUMNS, FIRM_KEY, FLEX_MOTION, obj_text, w
 from graspgen.io.arrow import column_array
 from graspgen.io.atomic import atomic_path, write_text_atomic
 from graspgen.io.dataset_table import float_values
-from graspgen.io.row_groups import by_object, objects_of_table
+from graspgen.io.row_groups import objects_of_table
 
 __all__ = ["export_acronym", "export_object_acronym"]
 
@@ -49,9 +50,8 @@ def export_acronym(root: Path) -> list[str]:
     schema = pq.read_schema(root / "grasps.parquet")
     labels = [c for c in ("robustness", "pfc", "epsilon") if c in schema.names]
     firm = [c for c in FIRM_COLUMNS if c in schema.names] if "firm" in schema.names else []
-    table = pq.read_table(root / "grasps.parquet", columns=wanted + labels + firm)
-    written = []
-    for name, part in by_object(table, root / "grasps.parquet"):
+    written = []  # one object's rows at a time, gathered in passes (the table is sorted by scene)
+    for name, part in objects_of_table(root / "grasps.parquet", wanted + labels + firm):
         gripper = _one_gripper(part, name, root / "grasps.parquet")
         mesh_rel, props = _write_object_mesh(root, name)
         qualities = {

@@ -147,6 +147,11 @@ def _label_lines(card: Mapping[str, Any]) -> list[str]:
         cells = [fmt(s.get(k)) for k in ("mean", "std", "min", "p05", "median", "p95", "max")]
         lines.append(f"| {name} | {s['n']} | " + " | ".join(cells) + " |")
     lines.append("")
+    sample = card.get("label_sample")
+    if sample:  # past the card's cap (graspgen.io.card_labels): which figures come from a sample
+        lines += [f"The table has more than {sample['exact_up_to']} rows: {', '.join(sample['from_sample'])} come "
+                  f"from a sample of {sample['sampled']} of its {sample['rows']} rows ({sample['selection']}); "
+                  "every other figure is of all rows.", ""]
     for name, s in card["labels"].items():
         h = s.get("histogram")
         if not h:

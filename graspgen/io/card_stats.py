@@ -1,9 +1,11 @@
 """The statistics of a dataset card: counts per object and outcome, label summaries and histograms, correlations.
 
 :func:`card_stats` computes them from the files of a dataset folder (grasps.parquet read one row group at a time
-into running counts, :mod:`graspgen.io.card_tally`; the scenes and objects listed), :func:`object_set_stats` those
-of the object-centric sets. :class:`CardSettings` is what the card and its plots read of the ``dataset`` config
-section. The card itself (card.json, card.md) is :mod:`graspgen.io.card`.
+into running counts, :mod:`graspgen.io.card_tally`, its labels in bounded memory, :mod:`graspgen.io.card_labels`:
+exact up to :data:`graspgen.io.card_labels.EXACT_ROWS` rows, past it the card's ``label_sample`` names the figures
+taken from a sample; the scenes and objects listed), :func:`object_set_stats` those of the object-centric sets.
+:class:`CardSettings` is what the card and its plots read of the ``dataset`` config section. The card itself
+(card.json, card.md) is :mod:`graspgen.io.card`.
 """
 
 from __future__ import annotations
@@ -20,12 +22,23 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from graspgen.io.card_labels import (
+    DISCRETE_LABEL_VALUES,
+    EXACT_ROWS,
+    HASH,
+    SAMPLE_ROWS,
+    LabelTally,
+    Moments,
+    binned_counts,
+    count_quantiles,
+)
 from graspgen.io.card_tally import CardTable, GraspTally, ObjectSetTally, PlacedTally, row_groups
-from graspgen.io.dataset_table import META_KEY, OUTCOME_NAMES
+from graspgen.io.dataset_table import META_KEY, OUTCOME_NAMES, float_values
 from graspgen.validation import check_bool, check_int
 
 __all__ = [
     "CORRELATED",
+    "DISCRETE_LABEL_VALUES",
     "LABEL_COLUMNS",
     "OBJECT_SET_FILES",
     "CardSettings",
@@ -40,11 +53,10 @@ LABEL_COLUMNS = ("robustness", "epsilon", "pfc", "min_closure_friction")
 CORRELATED = ("robustness", "epsilon", "pfc")
 """Labels whose pairwise correlations the card reports."""
 
-DISCRETE_LABEL_VALUES = 32
-"""A label with at most this many distinct values is counted per value (robustness and pfc of up to 31 copies, a
-friction grid), not binned."""
+QUANTILES = (0.05, 0.5, 0.95)
+"""The quantiles a label summary gives (p05, median, p95)."""
 
-TALLY_COLUMNS = ("scene_id", "object_name", "outcome", "gripper")
+TALLY_COLUMNS = ("scene_id", "grasp_id", "object_name", "outcome", "gripper")
 """The columns of grasps.parquet the counts read (with the labels)."""
 
 OBJECT_SET_FILES = ("object_grasps.parquet", "placed_grasps.parquet")
@@ -101,7 +113,7 @@ def label_summary(values: np.ndarray, bins: int, unit_range: bool) -> dict[str, 
     out: dict[str, Any] = {"n": int(len(v))}
     if len(v) == 0:
         return out
-    q = np.quantile(v, [0.05, 0.5, 0.95])
+    q = np.quantile(v, QUANTILES)
     out.update(
         mean=_num(v.mean()), std=_num(v.std()), min=_num(v.min()), p05=_num(q[0]), median=_num(q[1]),
         p95=_num(q[2]), max=_num(v.max()),
@@ -190,26 +202,26 @@ def _object_stats(library: list[str], scenes: Mapping[str, Any], tally: GraspTal
     return per_object
 
 
-def card_stats(root: Path, files: Mapping[str, Any], settings: CardSettings) -> tuple[dict[str, Any], CardTable]:
+def card_stats(root: Path, files: Mapping[str, Any], settings: CardSettings, *, exact_rows: int = EXACT_ROWS,
+               sample_rows: int = SAMPLE_ROWS) -> tuple[dict[str, Any], CardTable]:
     """Counts, label summaries and correlations of the dataset in ``root`` whose data files are ``files`` (relative
     paths; the scenes and objects are those listed, not whatever else sits in the folder); also returns what the
     plots read of the table (:class:`graspgen.io.card_tally.CardTable`).
 
-    grasps.parquet is read one row group at a time into running counts (:class:`GraspTally`); only the label
-    columns are kept whole (as float64 arrays: their quantiles and rank correlations need every value)."""
+    grasps.parquet is read one row group at a time into running counts (:class:`GraspTally`), its labels into a
+    :class:`graspgen.io.card_labels.LabelTally`: up to ``exact_rows`` rows every figure is exact (from the whole
+    columns, as :func:`label_summary` and the correlations always computed them); past it, the card's
+    ``label_sample`` says which figures come from a sample of ``sample_rows`` rows (:func:`_label_stats`)."""
     path = root / "grasps.parquet"
     schema = pq.read_schema(path)
     labels = [c for c in LABEL_COLUMNS if c in schema.names]
-    tally = GraspTally(labels)
+    tally = GraspTally(labels, exact_rows, sample_rows)
     for group in row_groups(path, [c for c in schema.names if c in (*TALLY_COLUMNS, *labels)]):
         tally.add(group)
     scenes = _scene_stats(root, files, tally)
     library = sorted(Path(rel).stem for rel in files if rel.startswith("objects/"))
     per_object = _object_stats(library, scenes, tally)
-    values = {c: tally.values(c) for c in labels}
-    summaries = {
-        col: label_summary(values[col], settings.histogram_bins, col in ("robustness", "pfc")) for col in labels
-    }
+    summaries, correlation, sample = _label_stats(path, tally.label_tally, settings)
     stats = {
         "counts": {
             "grasps": tally.rows,
@@ -225,13 +237,68 @@ def card_stats(root: Path, files: Mapping[str, Any], settings: CardSettings) -> 
         "objects": per_object,
         "scenes": scenes,
         "labels": summaries,
-        "correlation": _correlations(values),
+        "correlation": correlation,
     }
-    del values
+    if sample is not None:
+        stats["label_sample"] = sample
     sets = object_set_stats(root, files)
     if sets:
         stats["object_sets"] = sets
     return stats, CardTable(path, _card_columns(schema), tally)
+
+
+def _label_stats(path: Path, tally: LabelTally, settings: CardSettings) -> tuple[dict, dict, dict | None]:
+    """The label summaries, the correlations and, past the tally's cap, what the card says of its sample.
+
+    Up to the cap every row is held: :func:`label_summary` and :func:`_correlations` of the whole columns. Past it
+    (:mod:`graspgen.io.card_labels`): n, mean, std, min, max and per-value histograms from the streamed figures,
+    binned histograms from a second pass over the column, quantiles from the value counts of a label with at most
+    :data:`DISCRETE_LABEL_VALUES` values, else from the sample (the summary's ``sample``: the sampled values they
+    come from), the correlation coefficients from the sample (``sample_rows``) with the pair counts of all rows."""
+    values = {c: tally.values(c) for c in tally.labels}
+    unit = {c: c in ("robustness", "pfc") for c in tally.labels}
+    if not tally.sampled:
+        summaries = {c: label_summary(values[c], settings.histogram_bins, unit[c]) for c in tally.labels}
+        return summaries, _correlations(values), None
+    summaries = {c: _streamed_summary(path, c, tally.moments[c], values[c], settings.histogram_bins, unit[c])
+                 for c in tally.labels}
+    correlation = _correlations(values)
+    index = {c: i for i, c in enumerate(tally.labels)}
+    correlation["n"] = [[int(tally.pairs[index[a], index[b]]) for b in correlation["columns"]]
+                        for a in correlation["columns"]]
+    correlation["sample_rows"] = len(tally.hashes)
+    from_sample = [f"{c} quantiles" for c in tally.labels if tally.moments[c].distinct is None]
+    sample = {"rows": tally.rows, "sampled": len(tally.hashes), "exact_up_to": tally.exact_rows, "selection": HASH,
+              "from_sample": [*from_sample, "correlation coefficients"]}
+    return summaries, correlation, sample
+
+
+def _streamed_summary(path: Path, column: str, m: Moments, sample: np.ndarray, bins: int,
+                      unit_range: bool) -> dict[str, Any]:
+    """:func:`label_summary`'s figures of a label past the cap, from its streamed figures ``m``, its ``sample``
+    ((k,) float64, NaN where undefined) and, for a binned histogram, a second pass over ``column`` of ``path``."""
+    out: dict[str, Any] = {"n": m.n}
+    if m.n == 0:
+        return out
+    if m.distinct is not None:
+        distinct = np.asarray(sorted(m.distinct), np.float64)
+        counts = np.asarray([m.distinct[v] for v in distinct.tolist()], np.int64)
+        q = count_quantiles(distinct, counts, QUANTILES)
+    else:
+        finite = sample[np.isfinite(sample)]
+        q = np.quantile(finite, QUANTILES) if len(finite) else np.full(len(QUANTILES), np.nan)
+    out.update(mean=_num(m.mean), std=_num(m.std), min=_num(m.lo), p05=_num(q[0]), median=_num(q[1]),
+               p95=_num(q[2]), max=_num(m.hi))
+    if m.distinct is not None:
+        out["histogram"] = {"values": [_num(x) for x in distinct], "counts": counts.tolist()}
+        return out
+    lo, hi = (0.0, 1.0) if unit_range else (m.lo, m.hi)
+    hi = hi if hi > lo else lo + 1.0
+    groups = (float_values(g.column(0)) for g in row_groups(path, [column]))
+    out["histogram"] = {"edges": [_num(e) for e in np.linspace(lo, hi, bins + 1)],
+                        "counts": binned_counts(groups, lo, hi, bins).tolist()}
+    out["sample"] = int(len(finite))
+    return out
 
 
 def object_set_stats(root: Path, files: Mapping[str, Any]) -> dict[str, Any]:

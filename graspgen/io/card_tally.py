@@ -1,13 +1,14 @@
 """The card's counts, taken one row group at a time: running tallies of a published table, never the table.
 
 :class:`GraspTally` reads ``grasps.parquet`` group by group and keeps running counts (outcomes overall, per object
-and per scene, grippers) and the label columns as bare float64 arrays (the order statistics, histograms and rank
-correlations of :func:`graspgen.io.card_stats.label_summary` need every value: 8 bytes a row per label instead of the
-whole row). :class:`ObjectSetTally` and :class:`PlacedTally` do the same for ``object_grasps.parquet`` and
+and per scene, grippers), where each scene's rows are (runs of row positions, one per scene in a sorted file) and
+the label columns in bounded memory (:class:`graspgen.io.card_labels.LabelTally`: every value up to
+:data:`graspgen.io.card_labels.EXACT_ROWS` rows, then streamed figures and a deterministic sample).
+:class:`ObjectSetTally` and :class:`PlacedTally` do the same for ``object_grasps.parquet`` and
 ``placed_grasps.parquet``, where every figure is a count. Each tally has ``add`` (one row group) and ``merge``
 (another tally, e.g. of another file or shard): counts add, so the figures equal those of the whole table read at
-once. :class:`CardTable` is what the plots read instead of the table: the label arrays, the outcome, each row's
-scene by reference, and whole rows of the few example scenes read on demand.
+once. :class:`CardTable` is what the plots read instead of the table: the label values and outcomes the label tally
+holds, the rows of each scene, and whole rows of the few example scenes read on demand.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from graspgen.errors import NotFoundError
+from graspgen.io.card_labels import EXACT_ROWS, SAMPLE_ROWS, LabelTally, row_hash
 from graspgen.io.dataset_table import OUTCOME_NAMES, float_values
 
 __all__ = ["CardTable", "GraspTally", "ObjectSetTally", "PlacedTally", "row_groups"]
@@ -51,16 +53,33 @@ def _add_counts(into: dict[str, np.ndarray], names: list[str], counts: np.ndarra
             into[name] = row.copy()
 
 
+def _add_runs(into: dict[str, list[list[int]]], names: list[str], idx: np.ndarray, offset: int) -> None:
+    """Add the runs of consecutive rows of each scene (``idx`` (n,) indexes ``names``; rows from ``offset``) to
+    ``into`` (per scene ``[start, stop)`` runs, a run that continues the last one joined to it)."""
+    if len(idx) == 0:
+        return
+    starts = np.flatnonzero(np.r_[True, idx[1:] != idx[:-1]])
+    stops = np.r_[starts[1:], len(idx)]
+    for a, b in zip(starts.tolist(), stops.tolist()):
+        runs = into.setdefault(names[idx[a]], [])
+        if runs and runs[-1][1] == offset + a:
+            runs[-1][1] = offset + b
+        else:
+            runs.append([offset + a, offset + b])
+
+
 class GraspTally:
-    """Running counts and label values of ``grasps.parquet``, fed row groups in file order.
+    """Running counts of ``grasps.parquet`` and its labels in bounded memory, fed row groups in file order.
 
     Parameters
     ----------
     labels : sequence of str
-        The label columns whose values are kept (those of the table).
+        The label columns summarised (those of the table).
+    exact_rows, sample_rows : int
+        Of the label tally (:class:`graspgen.io.card_labels.LabelTally`).
     """
 
-    def __init__(self, labels: Sequence[str]):
+    def __init__(self, labels: Sequence[str], exact_rows: int = EXACT_ROWS, sample_rows: int = SAMPLE_ROWS):
         self.labels = list(labels)
         self.rows = 0
         self.outcomes = np.zeros(CODES, np.int64)
@@ -70,17 +89,15 @@ class GraspTally:
         self.scenes: dict[str, int] = {}
         """Grasps per scene id."""
         self.grippers: set[str] = set()
-        self.scene_names: list[str] = []
-        """Scene ids in order of first appearance; :attr:`scene_of_row` indexes them."""
-        self._scene_index: dict[str, int] = {}
-        self._values: dict[str, list[np.ndarray]] = {c: [] for c in self.labels}
-        self._outcome: list[np.ndarray] = []
-        self._scene_rows: list[np.ndarray] = []
+        self.scene_runs: dict[str, list[list[int]]] = {}
+        """Per scene id, its rows as ``[start, stop)`` runs of file positions (one run per scene in a file sorted
+        by scene): what the examples plot reads, in memory that grows with the scenes, not the rows."""
+        self.label_tally = LabelTally(self.labels, exact_rows, sample_rows)
+        """The label columns and outcomes: every row up to ``exact_rows``, then streamed figures and a sample."""
 
     def add(self, t: pa.Table) -> None:
-        """One row group (columns scene_id, object_name, outcome, gripper and the labels)."""
+        """One row group (columns scene_id, grasp_id, object_name, outcome, gripper and the labels)."""
         outcome = t.column("outcome").to_numpy().astype(np.int64)
-        self.rows += len(t)
         valid = (outcome >= 0) & (outcome < CODES)
         self.outcomes += np.bincount(outcome[valid], minlength=CODES)[:CODES]
         names, idx = _codes(t.column("object_name"))
@@ -91,67 +108,43 @@ class GraspTally:
         scenes, sidx = _codes(t.column("scene_id"))
         for name, n in zip(scenes, np.bincount(sidx, minlength=len(scenes)).tolist()):
             self.scenes[name] = self.scenes.get(name, 0) + n
-            if name not in self._scene_index:
-                self._scene_index[name] = len(self.scene_names)
-                self.scene_names.append(name)
-        self._scene_rows.append(np.asarray([self._scene_index[s] for s in scenes], np.int32)[sidx])
+        _add_runs(self.scene_runs, scenes, sidx, self.rows)
+        self.rows += len(t)
         self.grippers.update(t.column("gripper").unique().to_pylist())
-        self._outcome.append(outcome.astype(np.int8))
-        for c in self.labels:
-            self._values[c].append(float_values(t.column(c)))
+        hashes = row_hash(t.column("scene_id"), t.column("grasp_id").to_numpy())
+        self.label_tally.add(hashes, outcome.astype(np.int8), {c: float_values(t.column(c)) for c in self.labels})
 
     def merge(self, other: GraspTally) -> None:
         """Add another tally's rows after this one's (the next file or shard in order)."""
-        self.rows += other.rows
         self.outcomes += other.outcomes
         _add_counts(self.objects, list(other.objects), np.asarray(list(other.objects.values())).reshape(-1, 7))
         for name, n in other.scenes.items():
             self.scenes[name] = self.scenes.get(name, 0) + n
-            if name not in self._scene_index:
-                self._scene_index[name] = len(self.scene_names)
-                self.scene_names.append(name)
-        remap = np.asarray([self._scene_index[s] for s in other.scene_names], np.int32)
-        self._scene_rows += [remap[r] for r in other._scene_rows]
+        for name, runs in other.scene_runs.items():
+            mine = self.scene_runs.setdefault(name, [])
+            for a, b in runs:
+                if mine and mine[-1][1] == self.rows + a:
+                    mine[-1][1] = self.rows + b
+                else:
+                    mine.append([self.rows + a, self.rows + b])
+        self.rows += other.rows
         self.grippers |= other.grippers
-        self._outcome += other._outcome
-        for c in self.labels:
-            self._values[c] += other._values[c]
+        self.label_tally.merge(other.label_tally)
 
-    def values(self, column: str) -> np.ndarray:
-        """(rows,) float64 values of a label column, nulls as NaN, in file order."""
-        parts = self._values[column]
-        return np.concatenate(parts) if parts else np.zeros(0)
-
-    @property
-    def outcome(self) -> np.ndarray:
-        """(rows,) int8 outcome codes in file order."""
-        return np.concatenate(self._outcome) if self._outcome else np.zeros(0, np.int8)
-
-    @property
-    def scene_of_row(self) -> np.ndarray:
-        """(rows,) int32 index into :attr:`scene_names` of each row's scene."""
-        return np.concatenate(self._scene_rows) if self._scene_rows else np.zeros(0, np.int32)
-
-
-class _Names:
-    """A string column seen as one name per row without a string per row (what ``to_pylist`` of the plots needs)."""
-
-    def __init__(self, names: list[str], rows: np.ndarray):
-        self._names, self._rows = names, rows
-
-    def __len__(self) -> int:
-        return len(self._rows)
-
-    def to_pylist(self) -> list[str]:
-        return [self._names[i] for i in self._rows.tolist()]
+    def scene_rows(self, scene_id: str) -> np.ndarray:
+        """(m,) int64 file positions of the rows of ``scene_id``, in file order (empty when it has none)."""
+        runs = self.scene_runs.get(scene_id, [])
+        return np.concatenate([np.arange(a, b) for a, b in runs]) if runs else np.zeros(0, np.int64)
 
 
 class CardTable:
-    """What :func:`graspgen.viz.plots.draw_plots` reads of ``grasps.parquet``, with the memory of a few columns.
+    """What :func:`graspgen.viz.plots.draw_plots` reads of ``grasps.parquet``, in memory that does not grow with it.
 
-    ``column`` gives the outcome and label columns (arrays the tally kept) and ``scene_id`` (one reference per row);
-    ``take`` reads whole rows (the card columns) of the row groups that hold them: the plots take the rows of a few
-    example scenes only. Any other column is not held: KeyError.
+    ``column`` gives the outcome and label columns the label tally holds: every row in file order up to its cap,
+    else the sample's rows (:attr:`sampled`); :attr:`hashes` are those rows' :func:`graspgen.io.card_labels.row_hash`.
+    ``scene_ids`` and ``scene_rows`` give the scenes and their rows' file positions, and ``take`` reads whole rows
+    (the card columns) of the row groups that hold them: the plots take the rows of a few example scenes only. Any
+    other column is not held: KeyError.
 
     Parameters
     ----------
@@ -167,19 +160,30 @@ class CardTable:
         self.path = Path(path)
         self.column_names = list(columns)
         self._tally = tally
-        self._arrays = {c: tally.values(c) for c in tally.labels}
-        self._arrays["outcome"] = tally.outcome
+        self.sampled = tally.label_tally.sampled
+        """Whether the label columns are a sample of the rows (the table passed the label tally's cap)."""
+        self._arrays = {c: tally.label_tally.values(c) for c in tally.labels}
+        self._arrays["outcome"] = tally.label_tally.outcome
+        self.hashes = tally.label_tally.hashes
+        """(m,) uint64 row hashes of the rows ``column`` gives."""
         meta = pq.ParquetFile(self.path).metadata
         self._starts = np.cumsum([0] + [meta.row_group(i).num_rows for i in range(meta.num_row_groups)])
 
     def __len__(self) -> int:
         return self._tally.rows
 
+    @property
+    def scene_ids(self) -> list[str]:
+        """The scene ids with rows, sorted."""
+        return sorted(self._tally.scene_runs)
+
+    def scene_rows(self, scene_id: str) -> np.ndarray:
+        """(m,) int64 file positions of a scene's rows."""
+        return self._tally.scene_rows(scene_id)
+
     def column(self, name: str) -> Any:
-        if name == "scene_id":
-            return _Names(self._tally.scene_names, self._tally.scene_of_row)
         if name not in self._arrays:
-            raise NotFoundError(f"{name}: not held by the card's table (columns held: outcome, scene_id, labels)")
+            raise NotFoundError(f"{name}: not held by the card's table (columns held: outcome, labels)")
         return pa.chunked_array([pa.array(self._arrays[name])])
 
     def take(self, indices: Any) -> pa.Table:

@@ -17,11 +17,19 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from graspgen.errors import InputError
 
-__all__ = ["GroupedParquetWriter", "by_object", "dictionary_columns", "objects_of_table", "write_grasps_parquet"]
+__all__ = [
+    "OBJECT_BATCH_ROWS",
+    "GroupedParquetWriter",
+    "by_object",
+    "dictionary_columns",
+    "objects_of_table",
+    "write_grasps_parquet",
+]
 
 
 def write_grasps_parquet(
@@ -172,15 +180,26 @@ def _scene_of(table: pa.Table) -> str:
     return "(empty)"
 
 
-def objects_of_table(path: Path, columns: list[str]) -> Iterator[tuple[str, pa.Table]]:
-    """The rows of an object grasp table per ``object_name``, objects in name order, rows in table order, read one
-    row group at a time: memory holds one object's rows (and one row group), not the table.
+OBJECT_BATCH_ROWS = 1 << 17
+"""Rows of whole objects gathered per pass over a table not sorted by object (:func:`objects_of_table`): memory
+holds about this many rows (and one row group), whatever the table's size; a larger object is one pass alone."""
 
-    A published table is sorted by object (:func:`write_grasps_parquet` writes it so; a first pass over the
-    ``object_name`` column checks it); a table that is not is read whole and split, with the same result."""
+
+def objects_of_table(path: Path, columns: list[str], batch_rows: int = OBJECT_BATCH_ROWS,
+                     ) -> Iterator[tuple[str, pa.Table]]:
+    """The rows of a grasp table per ``object_name``, objects in name order, rows in table order, in memory that
+    does not grow with the table (``columns`` must include ``object_name``).
+
+    A first pass over the ``object_name`` column counts each object's rows and checks the order. A table sorted by
+    object (the published object sets: :func:`write_grasps_parquet` writes them so) is then read one row group at a
+    time, holding one object's rows. Any other (``grasps.parquet``, sorted by scene) is read in passes: objects in
+    name order are gathered in batches of about ``batch_rows`` rows, one pass over the row groups per batch (row
+    groups whose ``object_name`` statistics rule the batch out are skipped unread). The same result as the whole
+    table split by :func:`by_object`."""
     pf = pq.ParquetFile(path)
-    if not _sorted_by_object(pf, path):
-        yield from by_object(pq.read_table(path, columns=columns), path)
+    is_sorted, counts = _scan_objects(pf, path)
+    if not is_sorted:
+        yield from _objects_in_passes(pf, columns, counts, batch_rows)
         return
     name: str | None = None
     parts: list[pa.Table] = []
@@ -199,18 +218,52 @@ def objects_of_table(path: Path, columns: list[str]) -> Iterator[tuple[str, pa.T
         yield name, pa.concat_tables(parts)
 
 
-def _sorted_by_object(pf: pq.ParquetFile, path: Path) -> bool:
-    """Whether the ``object_name`` column never decreases (checked one row group at a time)."""
+def _scan_objects(pf: pq.ParquetFile, path: Path) -> tuple[bool, dict[str, int]]:
+    """Whether the ``object_name`` column never decreases, and the rows of each object (one row group at a time)."""
     last = None
+    ordered = True
+    counts: dict[str, int] = {}
     for i in range(pf.metadata.num_row_groups):
         names = np.asarray(pf.read_row_group(i, columns=["object_name"]).column(0).to_pylist(), dtype=object)
         _check_object_names(names, path)
         if len(names) == 0:
             continue
         if (last is not None and names[0] < last) or bool(np.any(names[1:] < names[:-1])):
-            return False
+            ordered = False
         last = names[-1]
-    return True
+        for name, n in zip(*np.unique(names, return_counts=True)):
+            counts[str(name)] = counts.get(str(name), 0) + int(n)
+    return ordered, counts
+
+
+def _objects_in_passes(pf: pq.ParquetFile, columns: list[str], counts: dict[str, int],
+                       batch_rows: int) -> Iterator[tuple[str, pa.Table]]:
+    """The objects of an unsorted table in name order, gathered a batch of about ``batch_rows`` rows per pass."""
+    batches: list[list[str]] = [[]]
+    rows = 0
+    for name in sorted(counts):
+        if batches[-1] and rows + counts[name] > batch_rows:
+            batches.append([])
+            rows = 0
+        batches[-1].append(name)
+        rows += counts[name]
+    leaves = pf.metadata.schema
+    column = next(j for j in range(len(leaves)) if leaves.column(j).path == "object_name")
+    for batch in batches:
+        if not batch:
+            continue
+        parts: dict[str, list[pa.Table]] = {name: [] for name in batch}
+        for i in range(pf.metadata.num_row_groups):
+            stats = pf.metadata.row_group(i).column(column).statistics
+            if stats is not None and stats.has_min_max and (stats.max < batch[0] or stats.min > batch[-1]):
+                continue  # no object of the batch in this group
+            group = pf.read_row_group(i, columns=columns)
+            group = group.filter(pc.is_in(group.column("object_name"), value_set=pa.array(batch)))
+            names = np.asarray(group.column("object_name").to_pylist(), dtype=object)
+            for name in sorted(set(names.tolist())):
+                parts[name].append(group.take(pa.array(np.flatnonzero(names == name))))
+        for name in batch:
+            yield name, pa.concat_tables(parts.pop(name))
 
 
 def _check_object_names(names: np.ndarray, path: Path) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,7 @@ import numpy as np
 import pyarrow as pa
 
 from graspgen.io.atomic import atomic_path
+from graspgen.io.card_labels import row_hash
 from graspgen.io.card_render import fmt
 from graspgen.io.card_stats import CardSettings
 from graspgen.io.dataset_table import float_values
@@ -176,11 +177,28 @@ def _epsilon_plot(plt: Any, root: Path, table: pa.Table, stats: Mapping[str, Any
     zero = int(((eps == 0) & finite).sum())
     ax.set_xlabel("Ferrari-Canny epsilon (unit-free)")
     ax.set_ylabel("grasps")
-    ax.set_title(f"epsilon of {int(finite.sum())} grasps by outcome ({zero} not in force closure: epsilon 0)")
+    if "label_sample" in stats:  # past the card's cap the table's label columns are a sample of the rows
+        ax.set_title(f"epsilon by outcome: a sample of {int(finite.sum())} of {stats['labels']['epsilon']['n']} "
+                     f"grasps ({zero} not in force closure)")
+    else:
+        ax.set_title(f"epsilon of {int(finite.sum())} grasps by outcome ({zero} not in force closure: epsilon 0)")
     ax.legend(fontsize=8)
     fig.tight_layout()
     _save(fig, root / "plots" / "epsilon.png")
     return "plots/epsilon.png"
+
+
+SCATTER_POINTS = 20_000
+"""Most points of the correlation scatter: past it, those of the rows with the smallest
+:func:`graspgen.io.card_labels.row_hash` (the same rows whatever the table's split); more make a blot, and drawing
+them takes memory that grows with the points."""
+
+
+def _row_hashes(table: Any) -> np.ndarray:
+    """(n,) uint64 row hashes of the table's label rows: the card table's own, else from scene_id and grasp_id."""
+    if not isinstance(table, pa.Table):
+        return table.hashes
+    return row_hash(table.column("scene_id"), table.column("grasp_id").to_numpy())
 
 
 def _correlation_plot(plt: Any, root: Path, table: pa.Table, stats: Mapping[str, Any]) -> str | None:
@@ -192,18 +210,23 @@ def _correlation_plot(plt: Any, root: Path, table: pa.Table, stats: Mapping[str,
     ok = np.isfinite(r) & np.isfinite(e)
     if ok.sum() < 2:
         return None
+    corr = stats["correlation"]
+    i, j = corr["columns"].index("robustness"), corr["columns"].index("epsilon")
+    pairs = int(corr["n"][i][j])  # all rows' pairs, also where the table's columns are a sample
+    if ok.sum() > SCATTER_POINTS:
+        h = _row_hashes(table)
+        ok &= h < np.partition(h[ok], SCATTER_POINTS)[SCATTER_POINTS]
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     jitter = (np.random.default_rng(0).random(int(ok.sum())) - 0.5) * 0.02  # seeded: bytes stay fixed
     colour = np.where(np.isfinite(p[ok]), p[ok], 0.0)
     sc = ax.scatter(e[ok], r[ok] + jitter, c=colour, cmap="viridis", vmin=0, vmax=1, s=14,
                     edgecolors="black", linewidths=0.2)
     fig.colorbar(sc, ax=ax, label="pfc")
-    corr = stats["correlation"]
-    i, j = corr["columns"].index("robustness"), corr["columns"].index("epsilon")
     rho = corr["spearman"][i][j]
     ax.set_xlabel("epsilon")
     ax.set_ylabel("robustness (jittered)")
-    ax.set_title(f"robustness vs epsilon, {int(ok.sum())} successful grasps (Spearman {fmt(rho, 2)})")
+    drawn = "" if ok.sum() == pairs else f", {int(ok.sum())} drawn"
+    ax.set_title(f"robustness vs epsilon, {pairs} successful grasps{drawn} (Spearman {fmt(rho, 2)})")
     fig.tight_layout()
     _save(fig, root / "plots" / "correlation.png")
     return "plots/correlation.png"
@@ -230,15 +253,15 @@ def _examples_sheet(root: Path, table: pa.Table, settings: CardSettings) -> Any:
     from graspgen.io.scenes import read_scene
     from graspgen.viz.grasp_view import grasp_picture
 
-    scene_col = np.asarray(table.column("scene_id").to_pylist(), dtype=object)
+    scene_ids, scene_rows = _scenes_of(table)
     pictures = []
-    for sid in sorted(set(scene_col)):
+    for sid in scene_ids:
         if len(pictures) == settings.example_scenes:
             break
         scene = read_scene(root / "scenes" / f"{sid}.h5")
         if scene.rgb is None:
             continue
-        part = table.take(pa.array(np.flatnonzero(scene_col == sid)))
+        part = table.take(pa.array(scene_rows(sid)))
         pictures.append(grasp_picture(scene, part, part, view=0, n=settings.example_grasps, scale=2))
     if not pictures:
         return None
@@ -250,3 +273,13 @@ def _examples_sheet(root: Path, table: pa.Table, settings: CardSettings) -> Any:
     for i, p in enumerate(pictures):
         sheet.paste(p, (6 + (i % cols) * (w + 6), 6 + (i // cols) * (h + 6)))
     return sheet
+
+
+def _scenes_of(table: Any) -> tuple[list[str], Callable[[str], np.ndarray]]:
+    """The table's scene ids (sorted) and a function giving a scene's row positions: from the card's table
+    (:class:`graspgen.io.card_tally.CardTable`, which keeps runs of rows per scene, not a scene id per row) or from
+    a pyarrow Table's ``scene_id`` column."""
+    if not isinstance(table, pa.Table):
+        return table.scene_ids, table.scene_rows
+    scene_col = np.asarray(table.column("scene_id").to_pylist(), dtype=object)
+    return sorted(set(scene_col)), lambda sid: np.flatnonzero(scene_col == sid)

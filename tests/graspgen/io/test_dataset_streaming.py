@@ -292,7 +292,7 @@ def test_tallies_merged_per_shard_equal_one_tally(dataset):
     root, _ = dataset
     pf = pq.ParquetFile(root / "grasps.parquet")
     labels = list(LABEL_COLUMNS)
-    cols = ["scene_id", "object_name", "outcome", "gripper", *labels]
+    cols = ["scene_id", "grasp_id", "object_name", "outcome", "gripper", *labels]
     whole, merged = GraspTally(labels), GraspTally(labels)
     whole.add(pf.read(columns=cols))
     for i in range(pf.num_row_groups):
@@ -303,19 +303,25 @@ def test_tallies_merged_per_shard_equal_one_tally(dataset):
     assert merged.scenes == whole.scenes and merged.grippers == whole.grippers
     assert {k: v.tolist() for k, v in merged.objects.items()} == {k: v.tolist() for k, v in whole.objects.items()}
     for c in labels:
-        assert np.array_equal(merged.values(c), whole.values(c), equal_nan=True)
-    names = np.asarray(merged.scene_names, dtype=object)[merged.scene_of_row]
-    assert names.tolist() == pf.read(columns=["scene_id"]).column(0).to_pylist()
+        assert np.array_equal(merged.label_tally.values(c), whole.label_tally.values(c), equal_nan=True)
+    assert merged.scene_runs == whole.scene_runs
+    scene_col = np.asarray(pf.read(columns=["scene_id"]).column(0).to_pylist(), dtype=object)
+    for sid in set(scene_col):
+        assert merged.scene_rows(sid).tolist() == np.flatnonzero(scene_col == sid).tolist()
+    assert all(len(runs) == 1 for runs in merged.scene_runs.values())  # a sorted file: one run per scene
 
 
 def test_the_plots_table_reads_the_rows_it_is_asked_for(dataset):
     root, files = dataset
     _, table = card_stats(root, files, CardSettings(plots=False))
     full = pq.read_table(root / "grasps.parquet")
-    rows = np.flatnonzero(np.asarray(full.column("scene_id").to_pylist()) == "scene_009")
+    scene_col = np.asarray(full.column("scene_id").to_pylist())
+    rows = np.flatnonzero(scene_col == "scene_009")
     assert _bytes(table.take(pa.array(rows))) == _bytes(full.select(table.column_names).take(pa.array(rows)))
-    assert table.column("scene_id").to_pylist() == full.column("scene_id").to_pylist()
+    assert table.scene_ids == sorted(set(scene_col.tolist()))
+    assert table.scene_rows("scene_009").tolist() == rows.tolist()
     assert np.array_equal(float_values(table.column("epsilon")), float_values(full.column("epsilon")), equal_nan=True)
+    assert not table.sampled
 
 
 def _bytes(table):

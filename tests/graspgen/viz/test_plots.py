@@ -52,3 +52,41 @@ def test_the_figure_is_one_size_past_the_row_limit(tmp_path):
         with Image.open(root / "plots" / "outcomes.png") as image:
             sizes.append(image.size)
     assert sizes[0] == sizes[1]
+
+
+def test_the_scatter_draws_the_rows_with_the_smallest_hashes_past_its_limit(tmp_path, monkeypatch):
+    """Past SCATTER_POINTS the correlation scatter draws the rows whose (scene_id, grasp_id) hashes are smallest
+    (a full sort is the truth), in table order; below it, every pair."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pyarrow as pa
+
+    from graspgen.io.card_labels import row_hash
+
+    rng = np.random.default_rng(0)
+    n = 400
+    sid = [f"s{i // 50}" for i in range(n)]
+    r = np.where(rng.random(n) < 0.7, rng.integers(0, 6, n) / 5, np.nan)
+    table = pa.table({"scene_id": sid, "grasp_id": np.arange(n) % 50, "robustness": r, "epsilon": rng.random(n)})
+    ok = np.isfinite(r)
+    stats = {"correlation": {"columns": ["robustness", "epsilon"], "n": [[0, int(ok.sum())], [int(ok.sum()), 0]],
+                             "spearman": [[1.0, 0.1], [0.1, 1.0]]}}
+    drawn = {}
+
+    def scatter(self, x, y, **kwargs):
+        drawn["x"] = np.asarray(x)
+        return real(self, x, y, **kwargs)
+
+    real = matplotlib.axes.Axes.scatter
+    monkeypatch.setattr(matplotlib.axes.Axes, "scatter", scatter)
+    monkeypatch.setattr(plots, "SCATTER_POINTS", 40)
+    (tmp_path / "plots").mkdir()
+    assert plots._correlation_plot(plt, tmp_path, table, stats) == "plots/correlation.png"
+    h = row_hash(table.column("scene_id"), table.column("grasp_id").to_numpy())
+    rows = np.flatnonzero(ok)[np.argsort(h[ok])[:40]]
+    assert np.array_equal(drawn["x"], table.column("epsilon").to_numpy()[np.sort(rows)])
+    monkeypatch.setattr(plots, "SCATTER_POINTS", 10_000)
+    plots._correlation_plot(plt, tmp_path, table, stats)
+    assert np.array_equal(drawn["x"], table.column("epsilon").to_numpy()[ok])
