@@ -61,7 +61,7 @@ def evaluate(
     backend: Annotated[
         str,
         typer.Option("--backend", help="mujoco (the CPU, --jobs workers) or warp (MuJoCo Warp: many grasps at once "
-                     "on a GPU, or Warp's CPU device; acronym and graspgen protocols; needs the warp extra)."),
+                     "on a GPU, or Warp's CPU device; every protocol; needs the warp extra)."),
     ] = "mujoco",
     device: Annotated[
         str | None, typer.Option("--device", help="With --backend warp: Warp device (cpu, cuda:0; default: Warp's).")

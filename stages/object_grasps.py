@@ -5,22 +5,43 @@ there for the candidates, the protocol and the table's columns): grasps over the
 alone in free space, rolled out until ``target_positives`` successes and ``target_negatives`` failures are kept or
 ``max_candidates`` were tried. One Parquet shard per object; an object that falls short of a target is named in the
 task's warnings.
+
+``object_grasps.backend: warp`` rolls each batch of candidates out at once on MuJoCo Warp; ``backend`` and ``warp``
+are out of the key while the backend is ``mujoco`` (so adding them kept every key); with ``warp`` they join it with
+the installed ``mujoco-warp`` and ``warp-lang`` versions (:class:`ObjectGraspsTaskParams`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from graspgen.errors import SettingsError
 from graspgen.grippers import gripper_files
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
+from graspgen.sim.warp_backend import WarpParams, warp_versions
 from graspgen.workflows.object_grasps import label_object_grasps
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
+from pipeline.config import FLATTEN
+from pipeline.keys import KEY_OMIT_DEFAULT
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectGraspsTaskParams:
+    """The stage's params: the ``object_grasps`` section (its keys at the top level, as before) and, with the ``warp``
+    backend, the warp packages' versions."""
+
+    object_grasps: ObjectGraspsParams = dataclasses.field(default_factory=ObjectGraspsParams,
+                                                          metadata={FLATTEN: True})
+    """The ``object_grasps`` section (``warp`` reset to its default when the backend is ``mujoco``: unused there)."""
+    warp_packages: dict[str, str] | None = dataclasses.field(default=None, metadata={KEY_OMIT_DEFAULT: True})
+    """``{"mujoco-warp": version, "warp-lang": version}`` with the ``warp`` backend, else None (out of the key)."""
 
 
 class ObjectGraspsStage(GraspStage):
@@ -29,21 +50,33 @@ class ObjectGraspsStage(GraspStage):
     version = 1
     ext = "parquet"
 
-    def tasks(self, params: ObjectGraspsParams, upstream: Upstream) -> list[Task]:
-        gripper = gripper_files(params.gripper)  # a gripper file's bytes (and its meshes') enter the keys
+    def params(self, config: Any) -> ObjectGraspsTaskParams:
+        section: ObjectGraspsParams = config.object_grasps
+        if section.backend == "mujoco":
+            return ObjectGraspsTaskParams(dataclasses.replace(section, warp=WarpParams()))
+        return ObjectGraspsTaskParams(section, warp_versions())
+
+    def check(self, params: ObjectGraspsTaskParams) -> None:
+        """The ``warp`` backend needs its extra installed."""
+        if params.object_grasps.backend == "warp" and params.warp_packages is None:
+            raise SettingsError("object_grasps.backend: 'warp' needs mujoco-warp and warp-lang, which are not "
+                                "installed (pip install -e '.[warp]'), or use 'mujoco'")
+
+    def tasks(self, params: ObjectGraspsTaskParams, upstream: Upstream) -> list[Task]:
+        gripper = gripper_files(params.object_grasps.gripper)  # a gripper file's bytes (and its meshes') enter the keys
         return [Task(id=name, needs={"objects": [name]}, inputs=gripper) for name in upstream.ids("objects")]
 
     def run(
         self,
         task: Task,
-        params: ObjectGraspsParams,
+        params: ObjectGraspsTaskParams,
         upstream: Upstream,
         rng: np.random.Generator,
         out: Path,
         ctx: RunContext,
     ) -> dict[str, Any]:
         record = read_object(upstream.path("objects", task.id))
-        table, meta = label_object_grasps(record, params, rng)
+        table, meta = label_object_grasps(record, params.object_grasps, rng)
         write_parquet(out, table)
         warning = shortfall(task.id, meta)
         return {**meta, "warnings": [warning]} if warning else meta

@@ -1,6 +1,6 @@
-"""The free-space protocols (``acronym``, ``graspgen``) on MuJoCo Warp (MJWarp): many grasps at once, one per world.
+"""The protocols (``acronym``, ``graspgen``, ``table``) on MuJoCo Warp (MJWarp): many grasps at once, one per world.
 
-:class:`WarpLiftSimulator` takes the same compiled scene as :class:`graspgen.sim.lift.LiftSimulator` (free object,
+:class:`WarpLiftSimulator` takes the same compiled scene as :class:`graspgen.sim.lift.LiftSimulator` (objects, support,
 gripper attached with :func:`graspgen.sim.gripper_model.attach_gripper`) and rolls out a batch of grasps in ``nworld``
 parallel worlds of one MJWarp model. What is reused from the CPU backend, unchanged: the model copy with the
 protocol's physics, force limit, damping and contact overrides written into it, the geom roles, the motion profiles
@@ -10,22 +10,28 @@ and step counts (all built by a :class:`LiftSimulator` it holds: :mod:`graspgen.
 ``no_contact_established`` rule (the world's state copied into the CPU data, ``mj_forward``,
 :meth:`LiftSimulator.jaw_contacts`, :func:`graspgen.sim.lift_rules.both_jaws`) and the result and firm label
 (:func:`graspgen.sim.lift_rules.rollout_result`). What runs batched on the device: the steps, and the rules checked
-during a phase (closing stop, jaws on the target, drift in the hand; :mod:`graspgen.sim.warp_rules`), with the CPU's
-check schedule: every ``check_interval`` steps of each phase segment and at its end, per world.
+during a phase (closing stop, jaws on the target, drift in the hand; ``table``: the live contacts and the objects'
+motion on the approach, the slip; :mod:`graspgen.sim.warp_rules`), with the CPU's check schedule: every
+``check_interval`` steps of each phase segment and at its end, per world. The worlds of a batch may grasp different
+objects of the scene (one target per grasp).
 
 What differs from the CPU backend, and so what the warp backend promises: MJWarp computes in float32 and its
 contact order within a step is not fixed across runs, so two runs of the same grasps can differ in the last bits and,
 for a grasp on the edge of a rule, in the label. The promise is the labels' rules and codes, not bit-identical
 results: ``bench/bench_warp.py`` measures the run-to-run flip rate and the agreement with the CPU backend. Results say
-which backend made them (``gen evaluate``'s metadata ``backend``); ``make repro`` covers the CPU backend only. The
+which backend made them (``gen evaluate``'s metadata ``backend``; the ``rollouts`` stage's key); ``make repro`` covers
+the CPU backend only. The
 placement decision and the end-of-closing contacts are the CPU's own code on the same state (float64), so a grasp
 decided at placement is labelled identically by both backends.
 
-The ``table`` protocol is not implemented here yet (SettingsError).
+The ``table`` protocol (approach, closing, lift, hold, shake on the scene's support) adds the approach rules and the
+slip and lift-gain rules: :mod:`graspgen.sim.warp_table`.
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.metadata
 import time
 import warnings
 from dataclasses import dataclass, fields
@@ -38,31 +44,53 @@ from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.poses_mj import pos_quat
 from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
 from graspgen.sim.warp_batch import BatchRun, disturbance_segments, unfinished_result
+from graspgen.sim.warp_table import TableRun, table_placement
 from graspgen.validation import check, check_choice, check_instance, check_int
 
-__all__ = ["BACKENDS", "WARP_PROTOCOLS", "WarpParams", "WarpLiftSimulator", "check_backend", "import_warp"]
+__all__ = ["BACKENDS", "KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WarpParams", "WarpLiftSimulator", "check_backend",
+           "import_warp", "warp_versions"]
+
+KEY_OMIT_DEFAULT = "key_omit_default"
+"""Field metadata flag of the settings added with this backend (``rollouts.backend``, ``object_grasps.backend`` and
+their ``warp``): content keys leave such a field out while it holds its default, so the keys made before it existed
+stay. It is the engine's flag of the same name (``pipeline.keys``); the library does not import the engine, so
+``tests/stages/test_rollouts_backend.py`` checks that the two are the same."""
 
 #: Rollout backends: ``mujoco`` (the CPU, :class:`LiftSimulator`) and ``warp`` (:class:`WarpLiftSimulator`).
 BACKENDS: tuple[str, ...] = ("mujoco", "warp")
 
 #: The protocols the warp backend runs.
-WARP_PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen")
+WARP_PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen", "table")
 
 _INSTALL = "pip install -e '.[warp]' (mujoco-warp and warp-lang)"
 
 
 def import_warp():
-    """``(warp, mujoco_warp)``, imported; :class:`graspgen.errors.MissingDependencyError` when the extra is missing."""
-    try:
-        import warp
+    """``(warp, mujoco_warp)``, imported; :class:`graspgen.errors.MissingDependencyError` when the extra is missing.
 
+    Imported by name (``importlib``), not by an ``import`` statement: a stage's code fingerprint
+    (:mod:`pipeline.fingerprint`) adds the version of every package its modules import, and the ``rollouts``
+    stage imports this module whatever its backend, so the warp packages' versions would enter the keys of the
+    CPU backend's shards (and differ between machines with and without the extra). The ``rollouts`` stage puts
+    them in its key itself when its backend is ``warp`` (:func:`warp_versions`)."""
+    try:
+        warp = importlib.import_module("warp")
         if warp.config.log_level < 30:  # before mujoco_warp initialises Warp: no banner, no module load lines
             warp.config.log_level = 30  # warp.LOG_WARNING
-        import mujoco_warp
+        mujoco_warp = importlib.import_module("mujoco_warp")
     except ImportError as exc:
         raise MissingDependencyError(f"the warp backend needs mujoco-warp and warp-lang, which are not installed "
                                      f"({exc.name or exc}): {_INSTALL}") from None
     return warp, mujoco_warp
+
+
+def warp_versions() -> dict[str, str] | None:
+    """``{"mujoco-warp": version, "warp-lang": version}`` of the installed extra, None when either is missing (no
+    import: the distributions' metadata only)."""
+    try:
+        return {name: importlib.metadata.version(name) for name in ("mujoco-warp", "warp-lang")}
+    except importlib.metadata.PackageNotFoundError:
+        return None
 
 
 def check_backend(backend: str, protocol: str) -> str:
@@ -100,7 +128,7 @@ class WarpParams:
 
 
 class WarpLiftSimulator:
-    """Batched free-space rollouts on MJWarp (module docstring).
+    """Batched rollouts on MJWarp (module docstring).
 
     Parameters
     ----------
@@ -188,16 +216,20 @@ class WarpLiftSimulator:
 
     # -- public -------------------------------------------------------------------------------------------------
 
-    def rollouts(self, T_tcp_world, target_body: str) -> list[RolloutResult]:
+    def rollouts(self, T_tcp_world, target_body, widths=None) -> list[RolloutResult]:
         """Roll out grasps and label them, ``nworld`` at a time; one result per grasp, in input order.
 
         Parameters
         ----------
         T_tcp_world
-            ``(n, 4, 4)`` world poses of the TCP frame at the grasps (z approach, x closing). The free-space
-            protocols open the jaws to their ``open_width`` whatever the grasp's width, so no width is taken.
+            ``(n, 4, 4)`` world poses of the TCP frame at the grasps (z approach, x closing).
         target_body
-            Name of the object body, e.g. ``"obj/0_box"``.
+            Name of the object body, e.g. ``"obj/0_box"``, or ``(n,)`` names, one per grasp (the worlds of a batch
+            may grasp different objects of the scene).
+        widths
+            ``(n,)`` pad separations (m) of the grasps: the ``table`` protocol opens the jaws to ``width +
+            width_margin`` (required there); the free-space protocols open them to their ``open_width`` and ignore
+            it.
 
         Returns
         -------
@@ -207,33 +239,46 @@ class WarpLiftSimulator:
         T = np.asarray(T_tcp_world, dtype=float)
         if T.ndim != 3 or T.shape[1:] != (4, 4):
             raise SettingsError(f"T_tcp_world: expected (n, 4, 4) poses, got shape {T.shape}")
-        target, roles, _ = self.cpu.target_roles(target_body)
+        table = self.params.protocol == "table"
+        if table:
+            if widths is None:
+                raise SettingsError("widths: the table protocol needs one pad separation (m) per grasp, got None")
+            widths = np.asarray(widths, dtype=float).reshape(-1)
+            if len(widths) != len(T) or not (np.isfinite(widths).all() and (widths >= 0).all()):
+                raise SettingsError(f"widths: expected {len(T)} finite widths >= 0 m, got {widths.tolist()[:8]}")
+        bodies = [target_body] * len(T) if isinstance(target_body, str) else list(target_body)
+        if len(bodies) != len(T):
+            raise SettingsError(f"target_body: expected a body name or {len(T)} of them, got {len(bodies)}")
         results: list[RolloutResult | None] = [None] * len(T)
         pending: list[tuple[int, dict]] = []
         t0 = time.perf_counter()
         for i, pose in enumerate(T):
-            placed = self._place(pose, target, roles)
+            target, roles, _ = self.cpu.target_roles(bodies[i])
+            placed = self._place(pose, None if widths is None else float(widths[i]), target, roles)
             if isinstance(placed, RolloutResult):
                 results[i] = placed
             else:
                 pending.append((i, placed))
         self.timings["placement_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
+        run = TableRun if table else BatchRun
         for b0 in range(0, len(pending), self.nworld):
             batch = pending[b0:b0 + self.nworld]
-            for (i, _), result in zip(batch, BatchRun(self, [s for _, s in batch], target, roles).run()):
+            for (i, _), result in zip(batch, run(self, [s for _, s in batch]).run()):
                 results[i] = result
         self.timings["batches_s"] += time.perf_counter() - t0
         return results  # type: ignore[return-value]
 
     # -- placement, on the CPU (LiftSimulator's own code) -------------------------------------------------------
 
-    def _place(self, pose: np.ndarray, target: int, roles: np.ndarray) -> dict | RolloutResult:
+    def _place(self, pose: np.ndarray, width: float | None, target: int, roles: np.ndarray) -> dict | RolloutResult:
         cpu = self.cpu
         pos, quat = pos_quat(pose, "T_tcp_world")
         gravity = cpu.model.opt.gravity
         gravity[:] = 0.0
         try:
+            if cpu.params.protocol == "table":
+                return table_placement(cpu, pose, pos, quat, float(width), target, roles)
             cpu.place(pos, quat, cpu.schedule.open_width)
             code = cpu.contact_code(roles, target, cpu.strict_allowance)
         finally:
@@ -242,4 +287,4 @@ class WarpLiftSimulator:
             return unfinished_result(cpu, Outcome(code), "placement", 0)
         d = cpu.data
         return {"pos": pos, "quat": quat, "R": pose[:3, :3].copy(), "qpos": d.qpos.copy(), "ctrl": d.ctrl.copy(),
-                "mark": cpu.mark(target)}
+                "mark": cpu.mark(target), "target": target, "roles": roles}

@@ -1,11 +1,14 @@
 """One batch of :class:`graspgen.sim.warp_backend.WarpLiftSimulator`: the per-world phase machine on MJWarp.
 
-Every world follows its own timeline, as its grasp would on the CPU: closing (until the jaws stop, checked every
-``check_interval`` steps, or the timeout), then the protocol's disturbance segments (:class:`Segment`), each with
-its own checks every ``check_interval`` of its steps and at its end; a world whose outcome is decided stops counting
-steps and its record is frozen (its world keeps stepping with the others, unobserved, until the batch is done).
-What is read on the CPU (the end of closing, the results) is the CPU backend's own code
-(:class:`graspgen.sim.lift_state.LiftState`, :mod:`graspgen.sim.lift_rules`).
+Every world follows its own timeline, as its grasp would on the CPU: the protocol's segments before closing (the
+``table`` protocol's approach: :class:`graspgen.sim.warp_table.TableRun`), closing (until the jaws stop, checked
+every ``check_interval`` steps, or the timeout), then the protocol's disturbance segments (:class:`Segment`), each
+with its own checks every ``check_interval`` of its steps and at its end; a world whose outcome is decided stops
+counting steps and its record is frozen (its world keeps stepping with the others, unobserved, until the batch is
+done). What is read on the CPU (the end of closing, the results) is the CPU backend's own code
+(:class:`graspgen.sim.lift_state.LiftState`, :mod:`graspgen.sim.lift_rules`). :class:`BatchRun` is the free-space
+protocols' machine; its hooks (:meth:`BatchRun._check_before`, ``_held_rule``, ``_end_rule``, ``_lift_gain``)
+are what the ``table`` protocol replaces.
 """
 
 from __future__ import annotations
@@ -26,32 +29,44 @@ from graspgen.sim.warp_rules import jaws_on, relative_poses
 
 __all__ = ["BatchRun", "Segment", "closing_record", "disturbance_segments", "start_gravity", "unfinished_result"]
 
-_CLOSING = 0  # seg index 0 is closing; 1..S the disturbance segments; S + 1 done
-
-
 class Segment:
-    """One stretch of a disturbance (a CPU ``_move`` or ``_wait`` call): ``n`` steps under phase name ``phase``;
-    ``kind`` is ``pos`` (mocap at the grasp plus ``table[k]`` m along the approach axis), ``quat`` (mocap at the
-    grasp turned by the quaternion ``table[k]``), ``wait`` (targets unchanged) or ``tug`` (a wait with the object
-    pulled by its weight along the TCP-frame direction ``table (3,)``)."""
+    """One stretch of a protocol (a CPU ``_move`` or ``_wait`` call): ``n`` steps under phase name ``phase``;
+    ``kind`` is ``pos`` (mocap at the grasp plus ``table[k]`` m along the approach axis), ``zpos`` (mocap at the
+    grasp plus ``table[k]`` m along world z), ``quat`` (mocap at the grasp plus ``lift`` m along world z, turned by
+    the quaternion ``table[k]``), ``wait`` (targets unchanged) or ``tug`` (a wait with the object pulled by its
+    weight along the TCP-frame direction ``table (3,)``). ``mark``: the object's world pose is taken when the
+    segment starts (the reference of ``motion_shaking_*``)."""
 
-    def __init__(self, phase: str, n: int, kind: str, table: np.ndarray | None = None) -> None:
+    def __init__(self, phase: str, n: int, kind: str, table: np.ndarray | None = None, *, lift: float = 0.0,
+                 mark: bool = False) -> None:
         self.phase, self.n, self.kind, self.table = phase, int(n), kind, table
+        self.lift, self.mark = float(lift), bool(mark)
 
 
 def disturbance_segments(params: LiftParams, schedule: Schedule) -> list[Segment]:
-    """The protocol's disturbance (the CPU backend's ``_acronym_shake`` / ``_graspgen_tugs``) as segments."""
+    """The protocol's disturbance (the CPU backend's ``_acronym_shake`` / ``_graspgen_tugs``; ``table``: lift, hold
+    and ``_table_shake``) as segments."""
     s = schedule
+    if params.protocol == "table":
+        top = float(s.lift_offsets[-1, 2])
+        segments = [Segment("lifting", len(s.lift_offsets), "zpos", s.lift_offsets[:, 2]),
+                    Segment("holding", s.hold_steps, "wait")]
+        if params.shake:
+            segments += [Segment("shaking", len(s.shake_z), "zpos", top + s.shake_z, mark=True),
+                         Segment("shaking", len(s.shake_qx), "quat", s.shake_qx, lift=top)]
+        return segments
     if params.protocol == "acronym":
-        return [Segment("shaking", len(s.shake_z), "pos", s.shake_z),
+        return [Segment("shaking", len(s.shake_z), "pos", s.shake_z, mark=True),
                 Segment("shaking", len(s.shake_qx), "quat", s.shake_qx),
                 Segment("holding", s.settle_steps, "wait")]
-    return [Segment("shaking", s.tug_steps, "tug", d) for d in s.tug_dirs]
+    return [Segment("shaking", s.tug_steps, "tug", d, mark=i == 0) for i, d in enumerate(s.tug_dirs)]
 
 
 def start_gravity(cpu: LiftSimulator, R: np.ndarray) -> np.ndarray:
     """Gravity (3,) of a world once its closing ended, for the grasp's rotation ``R (3, 3)``
-    (:meth:`LiftSimulator._acronym_shake`; ``graspgen``: off)."""
+    (:meth:`LiftSimulator._acronym_shake`; ``graspgen``: off; ``table``: the scene's)."""
+    if cpu.params.protocol == "table":
+        return cpu.gravity.copy()
     if cpu.params.protocol == "acronym":
         if cpu.params.acronym.gravity == "world":
             return cpu.gravity.copy()
@@ -70,10 +85,11 @@ def unfinished_result(cpu: LiftSimulator, code: Outcome, phase: str, steps: int,
                           no_contacts() if contacts is None else contacts, motion, (nan, nan), pose, (nan, nan))
 
 
-def closing_record(cpu: LiftSimulator, world: int, state: dict, target: int, roles: np.ndarray, arrays: dict):
+def closing_record(cpu: LiftSimulator, world: int, state: dict, target: int, roles: np.ndarray, arrays: dict,
+                   gravity: np.ndarray | None = None):
     """Load world ``world``'s state (``arrays``: the batch's ``qpos``, ``qvel``, ``qacc_warmstart``) into the CPU
     data and read the end of closing with the CPU backend's code: ``(closed_width, motion_closing, pose_closed,
-    contacts)``."""
+    contacts)``; ``gravity (3,)``: the gravity closing ran under (None: off, the free-space protocols)."""
     d = cpu.data
     d.qpos[:] = arrays["qpos"][world]
     d.qvel[:] = arrays["qvel"][world]
@@ -82,29 +98,40 @@ def closing_record(cpu: LiftSimulator, world: int, state: dict, target: int, rol
     d.mocap_quat[cpu.index.mocap] = state["quat"]
     d.qacc_warmstart[:] = arrays["qacc_warmstart"][world]
     d.xfrc_applied[:] = 0.0
-    gravity = cpu.model.opt.gravity
-    gravity[:] = 0.0
+    view = cpu.model.opt.gravity
+    view[:] = 0.0 if gravity is None else gravity
     try:
         mujoco.mj_forward(cpu.model, d)
     finally:
-        gravity[:] = cpu.gravity
+        view[:] = cpu.gravity
     return cpu.width(), cpu.motion(target, state["mark"]), cpu.body_pose(target), cpu.jaw_contacts(roles)
 
 
 class BatchRun:
-    """A batch of states placed on the CPU (``WarpLiftSimulator._place``), rolled out together; :meth:`run`."""
+    """A batch of states placed on the CPU (``WarpLiftSimulator._place``; each with its ``target`` body id and geom
+    ``roles``: the worlds of a batch may grasp different objects of the scene), rolled out together; :meth:`run`.
 
-    def __init__(self, sim, states: list[dict], target: int, roles: np.ndarray) -> None:
-        self.sim, self.states, self.target, self.roles = sim, states, target, roles
+    ``seg`` numbers each world's segment in :attr:`plan`: the segments before closing (none here), closing (index
+    :attr:`C`, ``None`` in the plan), the disturbance, then ``done_seg``; ``k`` counts the steps taken in it."""
+
+    def __init__(self, sim, states: list[dict]) -> None:
+        self.sim, self.states = sim, states
         cpu = sim.cpu
-        self.n = len(states)
+        self.n = n = len(states)
         self.B = sim.nworld
+        self.targets = np.array([s["target"] for s in states], dtype=np.int64)
+        """``(n,)`` the target body of each world."""
+        self.roles = np.array([states[i % n]["roles"] for i in range(self.B)])
+        """``(nworld, ngeom)`` the geom roles of each world (unused worlds repeat real ones)."""
         self.K = sim.params.check_interval
         self.tol = closing_tolerance(sim.params, cpu.schedule.dt)
-        self.segments = sim.segments
-        self.seglen = np.array([cpu.schedule.close_max_steps] + [s.n for s in self.segments] + [0])
-        self.done_seg = len(self.segments) + 1
-        n = self.n
+        before = self._before_closing()
+        self.C = len(before)
+        """Index of closing in :attr:`plan`."""
+        self.plan: list[Segment | None] = [*before, None, *sim.segments]
+        """The segments, closing as None."""
+        self.seglen = np.array([cpu.schedule.close_max_steps if s is None else s.n for s in self.plan] + [0])
+        self.done_seg = len(self.plan)
         self.seg = np.zeros(n, dtype=np.int64)
         self.k = np.zeros(n, dtype=np.int64)
         self.steps = np.zeros(n, dtype=np.int64)
@@ -115,14 +142,43 @@ class BatchRun:
         self.results: list[RolloutResult | None] = [None] * n
         self.closing: list[tuple | None] = [None] * n
         self.rel0_p, self.rel0_R = np.zeros((n, 3)), np.zeros((n, 3, 3))  # the target in the hand at closing's end
-        self.mark_x, self.mark_R = np.zeros((n, 3)), np.zeros((n, 3, 3))  # the target in the world then
+        self.mark_x, self.mark_R = np.zeros((n, 3)), np.zeros((n, 3, 3))  # the target in the world at the mark
+        self.marked = np.zeros(n, dtype=bool)
         self.drift = np.zeros((n, 2))
         pad = [states[i % n] for i in range(self.B)]  # unused worlds repeat real ones (their results are dropped)
-        self.mocap_pos = np.array([s["pos"] for s in pad])
+        self.mocap_pos = np.array([s.get("start", s["pos"]) for s in pad])
         self.mocap_quat = np.array([s["quat"] for s in pad])
         self.gravity = np.zeros((self.B, 3))
+        self.gravity[:] = self._closing_gravity()
         self.xfrc = np.zeros((self.B, cpu.model.nbody, 6))
         self._pad = pad
+        self.forces_changed = False
+
+    # -- the protocol's hooks (the free-space protocols here; graspgen.sim.warp_table.TableRun: ``table``) -------
+
+    def _before_closing(self) -> list[Segment]:
+        """The segments before closing."""
+        return []
+
+    def _closing_gravity(self) -> np.ndarray:
+        """Gravity (3,) until a world's closing ends (free space: off)."""
+        return np.zeros(3)
+
+    def _check_before(self, worlds: np.ndarray, a: dict) -> None:
+        """The rules of the worlds in a segment before closing, due for a check (none here)."""
+
+    def _held_rule(self, held: np.ndarray, on: np.ndarray, a: dict, p: np.ndarray, R: np.ndarray) -> None:
+        """The disturbance's rule (``check_held``): neither jaw on the target -> 4."""
+        for i in held[~on[held].any(axis=1)]:
+            self._decide(int(i), Outcome.SLIPPED_DURING_LIFTING, self.plan[self.seg[i]].phase, a, p, R)
+
+    def _end_rule(self, i: int, on: np.ndarray, a: dict, p: np.ndarray, R: np.ndarray) -> None:
+        """The end: both jaws still on -> 5, else 4."""
+        self._decide(i, Outcome.SUCCESS if on[i].all() else Outcome.SLIPPED_DURING_LIFTING, "end", a, p, R)
+
+    def _lift_gain(self, i: int, a: dict) -> float:
+        """``lift_gain`` of a decided world (free space: NaN)."""
+        return math.nan
 
     # -- device I/O -----------------------------------------------------------------------------------------------
 
@@ -132,7 +188,6 @@ class BatchRun:
         with wp.ScopedDevice(sim.device):
             mjw.reset_data(sim.device_model, sim.device_data)
             sim.device_data.qpos.assign(np.array([s["qpos"] for s in self._pad], dtype=np.float32))
-            sim.device_data.ctrl.assign(np.array([s["ctrl"] for s in self._pad], dtype=np.float32))
             m = cpu.index.mocap
             mp = np.zeros((self.B, cpu.model.nmocap, 3), dtype=np.float32)
             mq = np.zeros((self.B, cpu.model.nmocap, 4), dtype=np.float32)
@@ -142,12 +197,16 @@ class BatchRun:
             sim.device_data.mocap_quat.assign(mq)
             sim.world_gravity.assign(self.gravity.astype(np.float32))
             sim.device_data.xfrc_applied.assign(self.xfrc.astype(np.float32))
-        # closing: every world commands the smallest width (LiftSimulator._close)
         for s in self.states:
             s["ctrl"] = s["ctrl"].copy()
-            s["ctrl"][cpu.index.act] = cpu.min_width
-        with wp.ScopedDevice(sim.device):
-            sim.device_data.ctrl.assign(np.array([s["ctrl"] for s in self._pad], dtype=np.float32))
+        if self.C == 0:  # closing from the start: every world commands the smallest width (LiftSimulator._close)
+            for s in self.states:
+                s["ctrl"][cpu.index.act] = cpu.min_width
+        self._write_ctrl()
+
+    def _write_ctrl(self) -> None:
+        with self.sim.wp.ScopedDevice(self.sim.device):
+            self.sim.device_data.ctrl.assign(np.array([s["ctrl"] for s in self._pad], dtype=np.float32))
 
     def _read(self, contacts: bool) -> dict:
         d = self.sim.device_data
@@ -194,16 +253,21 @@ class BatchRun:
     def _targets(self, active: np.ndarray) -> None:
         """Write this step's mocap targets (the segment's row ``k``) for the worlds in a moving segment."""
         changed = False
-        moving = active & (self.seg > _CLOSING)
-        for j, s in enumerate(self.segments):
-            sel = np.flatnonzero(moving & (self.seg == j + 1))
-            if len(sel) == 0 or s.kind not in ("pos", "quat"):
+        for j, s in enumerate(self.plan):
+            if s is None or s.kind not in ("pos", "zpos", "quat"):
+                continue
+            sel = np.flatnonzero(active & (self.seg == j))
+            if len(sel) == 0:
                 continue
             rows = s.table[self.k[sel]]
             if s.kind == "pos":
                 self.mocap_pos[sel] = self.pos[sel] + rows[:, None] * self.R[sel, :, 2]
+            elif s.kind == "zpos":
+                self.mocap_pos[sel] = self.pos[sel]
+                self.mocap_pos[sel, 2] += rows
             else:
                 self.mocap_pos[sel] = self.pos[sel]
+                self.mocap_pos[sel, 2] += s.lift
                 self.mocap_quat[sel] = quat_mul(self.quat[sel], rows)
             changed = True
         if changed:
@@ -216,74 +280,80 @@ class BatchRun:
     def _check(self, worlds: np.ndarray, a: dict) -> None:
         """The rules of the worlds due for a check now (the CPU's ``check`` callbacks, world by world)."""
         cpu = self.sim.cpu
-        t, base, n = self.target, cpu.index.base, self.n
+        t, base, n, C = self.targets, cpu.index.base, self.n, self.C
+        seg0 = self.seg[worlds].copy()  # the segment each world was checked in (a rule may move it on)
         on = jaws_on(a["geom"], a["world"], self.B, cpu.index.geom_side, self.roles)[:n]
-        p, R = relative_poses(a["xipos"][:n, t], a["xmat"][:n, t].reshape(-1, 3, 3), a["xpos"][:n, base],
+        rows = np.arange(n)
+        p, R = relative_poses(a["xipos"][rows, t], a["xmat"][rows, t].reshape(-1, 3, 3), a["xpos"][:n, base],
                               a["xmat"][:n, base].reshape(-1, 3, 3))
-        forces_changed = False
+        self.forces_changed = False
+        if C:
+            self._check_before(worlds[seg0 < C], a)
         # closing (LiftSimulator._close): stopped when the width changed less than the tolerance since the last check
-        closing = worlds[self.seg[worlds] == _CLOSING]
+        closing = worlds[seg0 == C]
         if len(closing):
             width = self._width(a)[closing]
             stopped = np.abs(width - self.last_width[closing]) < self.tol
             self.last_width[closing] = width
-            for i in closing[stopped | (self.k[closing] == self.seglen[_CLOSING])]:
-                forces_changed |= self._end_closing(int(i), a, p, R)
-        # the disturbance (check_held of LiftSimulator._rollout_free_space): drift, then neither jaw on -> 4
-        held = worlds[(self.seg[worlds] > _CLOSING) & (self.seg[worlds] < self.done_seg)]
-        held = held[~np.isin(held, closing)]
+            for i in closing[stopped | (self.k[closing] == self.seglen[C])]:
+                self._end_closing(int(i), a, p, R)
+        # the disturbance: the firm-hold drift, the protocol's rule, the end of each segment
+        held = worlds[(seg0 > C) & (seg0 < self.done_seg)]
         if len(held):
             self._update_drift(held, p, R)
-            for i in held[~on[held].any(axis=1)]:
-                self._decide(int(i), Outcome.SLIPPED_DURING_LIFTING, self.segments[self.seg[i] - 1].phase, a, p, R)
+            self._held_rule(held, on, a, p, R)
             ended = held[(self.seg[held] < self.done_seg) & (self.k[held] == self.seglen[self.seg[held]])]
             for i in ended:
-                forces_changed |= self._advance(int(i))
-                if self.seg[i] == self.done_seg:  # the end: both jaws still on -> 5, else 4
-                    code = Outcome.SUCCESS if on[i].all() else Outcome.SLIPPED_DURING_LIFTING
-                    self._decide(int(i), code, "end", a, p, R)
-        if forces_changed:
+                self._advance(int(i), a)
+                if self.seg[i] == self.done_seg:
+                    self._end_rule(int(i), on, a, p, R)
+        if self.forces_changed:
             with self.sim.wp.ScopedDevice(self.sim.device):
                 self.sim.world_gravity.assign(self.gravity.astype(np.float32))
                 self.sim.device_data.xfrc_applied.assign(self.xfrc.astype(np.float32))
 
-    def _end_closing(self, i: int, a: dict, p: np.ndarray, R: np.ndarray) -> bool:
+    def _end_closing(self, i: int, a: dict, p: np.ndarray, R: np.ndarray) -> None:
         """Closing ended in world ``i``: the CPU backend's record and rule, then the disturbance starts."""
         if "qvel" not in a:  # read once per check, whatever the number of worlds ending their closing
             a["qvel"] = self.sim.device_data.qvel.numpy().astype(float)
             a["qacc_warmstart"] = self.sim.device_data.qacc_warmstart.numpy().astype(float)
         t0 = time.perf_counter()
-        closed_width, motion, pose, contacts = closing_record(self.sim.cpu, i, self.states[i], self.target,
-                                                              self.roles, a)
+        gravity = self.gravity[i].copy() if self.gravity[i].any() else None
+        closed_width, motion, pose, contacts = closing_record(self.sim.cpu, i, self.states[i], int(self.targets[i]),
+                                                              self.roles[i], a, gravity)
         self.sim.timings["closing_record_s"] += time.perf_counter() - t0
         self.closing[i] = (closed_width, motion, pose, contacts)
         if not both_jaws(contacts):
             self.results[i] = unfinished_result(self.sim.cpu, Outcome.NO_CONTACT_ESTABLISHED, "closing",
                                                 int(self.steps[i]), contacts, (closed_width, motion, pose))
             self.seg[i] = self.done_seg
-            return False
+            return
         self.rel0_p[i], self.rel0_R[i] = p[i], R[i]
-        self.mark_x[i], self.mark_R[i] = a["xipos"][i, self.target], a["xmat"][i, self.target].reshape(3, 3)
         self.gravity[i] = start_gravity(self.sim.cpu, self.R[i])
-        self.seg[i], self.k[i] = _CLOSING, 0
-        self._advance(i)
-        return True
+        self.forces_changed = True
+        self.seg[i], self.k[i] = self.C, 0
+        self._advance(i, a)
 
-    def _advance(self, i: int) -> bool:
-        """World ``i`` enters its next non-empty segment (or done); sets that segment's tug force."""
+    def _advance(self, i: int, a: dict) -> None:
+        """World ``i`` enters its next non-empty segment (or done); sets that segment's tug force and takes the
+        object's pose when a segment with ``mark`` starts."""
         self.seg[i] += 1
         self.k[i] = 0
         while self.seg[i] < self.done_seg and self.seglen[self.seg[i]] == 0:
             self.seg[i] += 1  # an empty wait (settle_time 0) takes no step and no check, as on the CPU
-        self.xfrc[i, self.target] = 0.0
+        t = int(self.targets[i])
+        self.xfrc[i, t] = 0.0
+        self.forces_changed = True
         if self.seg[i] < self.done_seg:
-            s = self.segments[self.seg[i] - 1]
+            s = self.plan[self.seg[i]]
+            if s.mark:
+                self.mark_x[i], self.mark_R[i] = a["xipos"][i, t], a["xmat"][i, t].reshape(3, 3)
+                self.marked[i] = True
             if s.kind == "tug":
                 cpu = self.sim.cpu
-                weight = self.sim.params.graspgen.force_scale * float(cpu.model.body_subtreemass[self.target]) * \
+                weight = self.sim.params.graspgen.force_scale * float(cpu.model.body_subtreemass[t]) * \
                     math.sqrt(float(cpu.gravity @ cpu.gravity))
-                self.xfrc[i, self.target, :3] = weight * (self.R[i] @ s.table)
-        return True
+                self.xfrc[i, t, :3] = weight * (self.R[i] @ s.table)
 
     def _update_drift(self, worlds: np.ndarray, p: np.ndarray, R: np.ndarray) -> None:
         """The firm-hold measures (``_Drift.update``): largest displacement and rotation in the hand so far."""
@@ -293,17 +363,19 @@ class BatchRun:
 
     def _decide(self, i: int, code: Outcome, phase: str, a: dict, p: np.ndarray, R: np.ndarray) -> None:
         """World ``i``'s outcome after its disturbance started: the CPU backend's end-of-rollout measures."""
-        cpu = self.sim.cpu
+        cpu, t = self.sim.cpu, int(self.targets[i])
         p0, R0 = self.rel0_p[i], self.rel0_R[i]
         dp = p[i] - p0
         rel = (math.sqrt(float(dp @ dp)), float(rotation_angles(R0[None], R[i][None])[0]))
-        x0, M0 = self.mark_x[i], self.mark_R[i]
-        dx = a["xipos"][i, self.target] - x0
-        motion_shaking = (math.sqrt(float(dx @ dx)), float(rotation_angles(M0[None], a["xmat"][i, self.target].reshape(
-            1, 3, 3))[0]))
+        motion_shaking = (math.nan, math.nan)
+        if self.marked[i]:
+            dx = a["xipos"][i, t] - self.mark_x[i]
+            turned = rotation_angles(self.mark_R[i][None], a["xmat"][i, t].reshape(1, 3, 3))[0]
+            motion_shaking = (math.sqrt(float(dx @ dx)), float(turned))
         closed_width, motion, pose, contacts = self.closing[i]
         self.results[i] = rollout_result(cpu.params, code, phase, int(self.steps[i]), cpu.schedule.dt, closed_width,
-                                         math.nan, rel, contacts, motion, motion_shaking, pose,
+                                         self._lift_gain(i, a), rel, contacts, motion, motion_shaking, pose,
                                          (float(self.drift[i, 0]), float(self.drift[i, 1])))
         self.seg[i] = self.done_seg
-        self.xfrc[i, self.target] = 0.0
+        self.xfrc[i, t] = 0.0
+        self.forces_changed = True

@@ -38,7 +38,7 @@ in input order and, like every rollout (:mod:`graspgen.sim.lift`), independent o
 
 Backends (``backend``): ``mujoco``, the CPU rollouts above (the reference; bit-identical across runs and ``jobs``),
 or ``warp`` (:mod:`graspgen.sim.warp_backend`, the ``warp`` extra): the same model on MuJoCo Warp, ``warp.nworld``
-grasps at once in one process (a GPU, or Warp's CPU device), for the ``acronym`` and ``graspgen`` protocols; float32
+grasps at once in one process (a GPU, or Warp's CPU device), for every protocol; float32
 with a contact order that is not fixed, so a grasp on the edge of a rule can be labelled differently than on the CPU
 or in another warp run (``bench/bench_warp.py`` measures both). The table's metadata names the backend.
 
@@ -125,7 +125,7 @@ def evaluate_grasps(
         widths and settings.
     backend : str
         ``mujoco`` (the CPU, ``jobs`` workers) or ``warp`` (MuJoCo Warp, :mod:`graspgen.sim.warp_backend`: all
-        grasps in batches of ``warp.nworld`` parallel worlds in one process; ``acronym`` and ``graspgen`` protocols;
+        grasps in batches of ``warp.nworld`` parallel worlds in one process; every protocol;
         float32, so labels on the edge of a rule can differ from the CPU's and between runs). The robustness copies
         always run on the CPU.
     warp : WarpParams, optional
@@ -154,7 +154,7 @@ def evaluate_grasps(
                           protocol=protocol, cache_dir=cache_dir)
     check_backend(backend, ew.world.lift.protocol)
     jobs = (os.cpu_count() or 1) if jobs <= 0 else int(jobs)
-    results = _roll_out_warp(ew.world, ew.T_world, warp) if backend == "warp" else _roll_out(ew, jobs)
+    results = _roll_out_warp(ew.world, ew.T_world, ew.width, warp) if backend == "warp" else _roll_out(ew, jobs)
     table = evaluation_table(ew.T_tcp, ew.width, list(ew.source), results, ew.world.obj.pose)
     info = dict(ew.info)
     info["backend"] = backend
@@ -199,12 +199,13 @@ def _roll_out_chunk(world: ObjectWorld, T_world: np.ndarray, widths: np.ndarray)
     return [simulator.rollout(T, float(w), body) for T, w in zip(T_world, widths)]
 
 
-def _roll_out_warp(world: ObjectWorld, T_world: np.ndarray, warp: WarpParams | None) -> list[RolloutResult]:
+def _roll_out_warp(world: ObjectWorld, T_world: np.ndarray, widths: np.ndarray,
+                   warp: WarpParams | None) -> list[RolloutResult]:
     """All grasps on the warp backend, in one model of ``warp.nworld`` worlds (input order)."""
     if len(T_world) == 0:
         return []
     simulator = WarpLiftSimulator(world_spec(world).compile(), world.lift, warp)  # as EvaluationWorld's
-    return simulator.rollouts(T_world, object_body_name(0, world.obj.name))
+    return simulator.rollouts(T_world, object_body_name(0, world.obj.name), widths)
 
 
 def _with_robustness(table: pa.Table, ew: EvaluationWorld, robustness: RobustnessParams,

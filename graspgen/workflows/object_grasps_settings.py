@@ -13,6 +13,7 @@ from graspgen.geometry.antipodal import AntipodalParams
 from graspgen.grippers import ACRONYM_GRIPPER, GripperSpec, load_gripper
 from graspgen.quality.epsilon import EpsilonParams
 from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
+from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams, check_backend
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
 
 __all__ = ["LABELS", "PROTOCOLS", "ObjectGraspsParams", "default_overhang", "default_tilt", "protocol_opening"]
@@ -92,6 +93,14 @@ class ObjectGraspsParams:
     this) or ``firm`` (also the object's motion in the hand within ``lift.firm_translation`` / ``firm_rotation``;
     a held-but-not-firm grasp is then kept as a negative). The other label is stored in every row either way
     (``success``, ``firm``)."""
+    backend: str = dataclasses.field(default="mujoco", metadata={KEY_OMIT_DEFAULT: True})
+    """Where the candidates are rolled out: ``mujoco`` (the CPU, one after another) or ``warp`` (MuJoCo Warp, each
+    batch of ``batch_size`` candidates at once; needs ``pip install -e '.[warp]'``). The results are taken in the
+    same trial order and stop at the same point, so the same labels keep the same rows (the candidates a batch
+    holds past that point are simulated and dropped); the robustness copies run on the CPU."""
+    warp: WarpParams = dataclasses.field(default_factory=WarpParams, metadata={KEY_OMIT_DEFAULT: True})
+    """Device and buffer sizes of the ``warp`` backend (:class:`graspgen.sim.warp_backend.WarpParams`; its
+    ``nworld`` is capped at ``batch_size``; unused by ``mujoco``)."""
 
     def __post_init__(self) -> None:
         check("gripper", isinstance(self.gripper, str) and bool(self.gripper),
@@ -130,6 +139,8 @@ class ObjectGraspsParams:
         check_instance("lift", self.lift, LiftParams)
         if self.lift.protocol != self.protocol:
             object.__setattr__(self, "lift", self.lift.with_protocol(self.protocol))
+        check_backend(self.backend, self.protocol)
+        check_instance("warp", self.warp, WarpParams)
         object.__setattr__(self, "friction", check_number("friction", self.friction, low=0.0, low_open=True))
         object.__setattr__(self, "num_perturbations", check_int("num_perturbations", self.num_perturbations, low=0))
         for key in ("perturbation_translation", "perturbation_rotation"):

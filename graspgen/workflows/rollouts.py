@@ -5,6 +5,12 @@ weld) is compiled once per task and reused for every grasp by resetting its stat
 LiftSimulator`). A grasp the pre-filter rejected keeps the pre-filter's code (0, 1 or 2) as its outcome without
 being simulated, unless ``simulate_rejected`` is true.
 
+Backends (``backend``): ``mujoco``, the CPU, one grasp after another (bit-identical across runs); ``warp``, the same
+compiled model on MuJoCo Warp (:class:`graspgen.sim.warp_backend.WarpLiftSimulator`, the ``warp`` extra): the
+scene's grasps (on any of its objects) rolled out together, ``warp.nworld`` worlds per batch, with the same rules
+and codes; float32 and a contact order that is not fixed, so a grasp on the edge of a rule can be labelled
+differently than on the CPU or in another run (``bench/bench_warp.py`` measures how often).
+
 Outcome codes: 0 collision_with_ground, 1 collision_with_target, 2 collision_with_clutter,
 3 no_contact_established, 4 slipped_during_lifting, 5 success (rules: :class:`graspgen.sim.lift.LiftSimulator`).
 
@@ -47,6 +53,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 
 from graspgen.grippers import load_gripper
@@ -56,10 +63,11 @@ from graspgen.sim.gripper_model import attach_gripper
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.protocols import LiftParams, RolloutResult
 from graspgen.sim.scene_model import object_body_name, scene_spec
+from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpLiftSimulator, WarpParams, check_backend
 from graspgen.validation import check_bool, check_instance
 from graspgen.workflows.rollout_columns import rollout_fields, rollout_table
 
-__all__ = ["SCHEMA", "RolloutsParams", "results_table", "roll_out_table", "scene_simulator"]
+__all__ = ["SCHEMA", "RolloutsParams", "results_table", "roll_out_table", "scene_simulator", "warp_batch"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,10 +78,18 @@ class RolloutsParams:
     """Also simulate grasps the pre-filter rejected (their label then comes from the simulation)."""
     lift: LiftParams = dataclasses.field(default_factory=LiftParams)
     """The grasp-and-lift protocol, outcome thresholds and physics settings."""
+    backend: str = dataclasses.field(default="mujoco", metadata={KEY_OMIT_DEFAULT: True})
+    """Where the rollouts run: ``mujoco`` (the CPU, one grasp after another) or ``warp`` (MuJoCo Warp, a scene's
+    grasps in parallel worlds on a GPU or Warp's CPU device; needs ``pip install -e '.[warp]'``)."""
+    warp: WarpParams = dataclasses.field(default_factory=WarpParams, metadata={KEY_OMIT_DEFAULT: True})
+    """Device, worlds per batch and buffer sizes of the ``warp`` backend (:class:`graspgen.sim.warp_backend.
+    WarpParams`; unused by ``mujoco``)."""
 
     def __post_init__(self) -> None:
         check_bool("simulate_rejected", self.simulate_rejected)
         check_instance("lift", self.lift, LiftParams)
+        check_backend(self.backend, self.lift.protocol)
+        check_instance("warp", self.warp, WarpParams)
 
 
 SCHEMA = pa.schema(
@@ -90,30 +106,49 @@ SCHEMA = pa.schema(
 
 
 def scene_simulator(
-    scene_path: Path, load_object: Any, gripper: str, lift: LiftParams
-) -> tuple[SceneRecord, LiftSimulator]:
-    """Read a scene and compile it with the gripper attached, once, into a reusable :class:`LiftSimulator`."""
+    scene_path: Path, load_object: Any, gripper: str, lift: LiftParams, warp: WarpParams | None = None
+) -> tuple[SceneRecord, LiftSimulator | WarpLiftSimulator]:
+    """Read a scene and compile it with the gripper attached, once, into a reusable :class:`LiftSimulator` (or, with
+    ``warp``, a :class:`~graspgen.sim.warp_backend.WarpLiftSimulator` of the same model)."""
     scene = read_scene(scene_path)
     records = {n: load_object(n) for n in sorted(set(scene.object_names))}
     spec = scene_spec(scene, records, visual=False)
     attach_gripper(spec, load_gripper(gripper))
+    if warp is not None:
+        return scene, WarpLiftSimulator(spec.compile(), lift, warp)
     return scene, LiftSimulator(spec.compile(), lift)
 
 
-def roll_out_table(scene: SceneRecord, simulator: LiftSimulator, grasps: pa.Table, params: RolloutsParams) -> pa.Table:
-    """Roll out (or take the pre-filter's label for) every grasp of a grasps table; one output row per grasp."""
+def roll_out_table(scene: SceneRecord, simulator: LiftSimulator | WarpLiftSimulator, grasps: pa.Table,
+                   params: RolloutsParams) -> pa.Table:
+    """Roll out (or take the pre-filter's label for) every grasp of a grasps table; one output row per grasp.
+
+    On a :class:`~graspgen.sim.warp_backend.WarpLiftSimulator` the scene's grasps are rolled out together, whatever
+    object each grasps (``simulator.nworld`` worlds per batch); results are in row order either way."""
     poses = column_array(grasps, "pose_world", (4, 4))
     widths = grasps.column("width").to_numpy()
     prefilter = grasps.column("prefilter_code").to_numpy()
     index = grasps.column("object_index").to_numpy()
-    results: list[RolloutResult | None] = []
-    for i in range(len(grasps)):
-        if prefilter[i] >= 0 and not params.simulate_rejected:
-            results.append(None)
-            continue
-        body = object_body_name(int(index[i]), scene.object_names[int(index[i])])
-        results.append(simulator.rollout(poses[i], float(widths[i]), body))
+    results: list[RolloutResult | None] = [None] * len(grasps)
+    todo = [i for i in range(len(grasps)) if prefilter[i] < 0 or params.simulate_rejected]
+    bodies = [object_body_name(int(index[i]), scene.object_names[int(index[i])]) for i in todo]
+    if isinstance(simulator, WarpLiftSimulator):
+        for i, result in zip(todo, simulator.rollouts(poses[todo], bodies, widths[todo])):
+            results[i] = result
+        return results_table(grasps, results)
+    for i, body in zip(todo, bodies):
+        results[i] = simulator.rollout(poses[i], float(widths[i]), body)
     return results_table(grasps, results)
+
+
+def warp_batch(grasps: pa.Table, params: RolloutsParams) -> WarpParams | None:
+    """The warp backend's settings for a scene's grasps table: ``params.warp`` with ``nworld`` no larger than the
+    number of grasps simulated (a batch steps all its worlds, used or not); None for the ``mujoco`` backend. Each
+    world is independent, so the batch size does not change a grasp's rules."""
+    if params.backend != "warp":
+        return None
+    todo = int(np.sum((grasps.column("prefilter_code").to_numpy() < 0) | params.simulate_rejected))
+    return dataclasses.replace(params.warp, nworld=max(1, min(params.warp.nworld, todo)))
 
 
 def results_table(grasps: pa.Table, results: list[RolloutResult | None]) -> pa.Table:
