@@ -19,11 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from graspgen.errors import SettingsError
 from graspgen.grippers import gripper_files
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
-from graspgen.sim.warp_backend import WarpParams, warp_versions
+from graspgen.sim.warp_backend import WarpParams, require_warp, warp_versions
 from graspgen.workflows.object_grasps import label_object_grasps
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
 from pipeline.config import FLATTEN
@@ -58,9 +57,7 @@ class ObjectGraspsStage(GraspStage):
 
     def check(self, params: ObjectGraspsTaskParams) -> None:
         """The ``warp`` backend needs its extra installed."""
-        if params.object_grasps.backend == "warp" and params.warp_packages is None:
-            raise SettingsError("object_grasps.backend: 'warp' needs mujoco-warp and warp-lang, which are not "
-                                "installed (pip install -e '.[warp]'), or use 'mujoco'")
+        require_warp("object_grasps.backend", params.object_grasps.backend, params.warp_packages)
 
     def tasks(self, params: ObjectGraspsTaskParams, upstream: Upstream) -> list[Task]:
         gripper = gripper_files(params.object_grasps.gripper)  # a gripper file's bytes (and its meshes') enter the keys

@@ -19,11 +19,10 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 
-from graspgen.errors import SettingsError
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
 from graspgen.sim.protocols import OUTCOME_NAMES
-from graspgen.sim.warp_backend import WarpParams, warp_versions
+from graspgen.sim.warp_backend import WarpParams, require_warp, warp_versions
 from graspgen.workflows.rollouts import RolloutsParams, roll_out_table, scene_simulator, warp_batch
 from pipeline.config import FLATTEN
 from pipeline.keys import KEY_OMIT_DEFAULT
@@ -57,9 +56,7 @@ class RolloutsStage(GraspStage):
 
     def check(self, params: RolloutsTaskParams) -> None:
         """The ``warp`` backend needs its extra installed."""
-        if params.rollouts.backend == "warp" and params.warp_packages is None:
-            raise SettingsError("rollouts.backend: 'warp' needs mujoco-warp and warp-lang, which are not installed "
-                                "(pip install -e '.[warp]'), or use 'mujoco'")
+        require_warp("rollouts.backend", params.rollouts.backend, params.warp_packages)
 
     def tasks(self, params: RolloutsTaskParams, upstream: Upstream) -> list[Task]:
         library = upstream.ids("objects")

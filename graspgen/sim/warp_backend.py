@@ -48,7 +48,7 @@ from graspgen.sim.warp_table import TableRun, table_placement
 from graspgen.validation import check, check_choice, check_instance, check_int
 
 __all__ = ["BACKENDS", "KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WarpParams", "WarpLiftSimulator", "check_backend",
-           "import_warp", "warp_versions"]
+           "import_warp", "warp_versions", "require_warp"]
 
 KEY_OMIT_DEFAULT = "key_omit_default"
 """Field metadata flag of the settings added with this backend (``rollouts.backend``, ``object_grasps.backend`` and
@@ -91,6 +91,14 @@ def warp_versions() -> dict[str, str] | None:
         return {name: importlib.metadata.version(name) for name in ("mujoco-warp", "warp-lang")}
     except importlib.metadata.PackageNotFoundError:
         return None
+
+
+def require_warp(key: str, backend: str, packages: dict[str, str] | None) -> None:
+    """SettingsError naming the config ``key`` when ``backend`` is ``warp`` and its extra is not installed
+    (``packages``: :func:`warp_versions`, None when missing)."""
+    if backend == "warp" and packages is None:
+        raise SettingsError(f"{key}: 'warp' needs mujoco-warp and warp-lang, which are not installed "
+                            "(pip install -e '.[warp]'), or use 'mujoco'")
 
 
 def check_backend(backend: str, protocol: str) -> str:
