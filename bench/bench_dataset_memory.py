@@ -197,10 +197,10 @@ def _status(key: str) -> int:
     return 0
 
 
-def _upstream(out: Path, parts: bool):
-    """The run's entries as the engine holds them: in the ``gen run`` process (publish) each stage's repeated
-    key-part strings held once (:func:`pipeline.plan.read_entries`); as shipped to a worker (the tasks) without
-    key parts (the views ``pipeline/scheduler.py`` ships)."""
+def _upstream(out: Path):
+    """The run's entries as the engine holds them, in the ``gen run`` process (publish) and as shipped to a
+    worker (the tasks): compact (:meth:`pipeline.store.Entry.compacted`, what :func:`pipeline.plan.read_entries`
+    gives)."""
     from pipeline.stage import Upstream
     from pipeline.store import Entry
 
@@ -210,9 +210,8 @@ def _upstream(out: Path, parts: bool):
         raw["dataset"] = json.loads(done.read_text())
     entries = {}
     for stage, by in raw.items():
-        shared: dict[str, str] = {}
-        entries[stage] = {t: Entry(**{**e, "parts": {sys.intern(k): shared.setdefault(v, v) for k, v in
-                                                      e["parts"].items()} if parts else {}}) for t, e in by.items()}
+        shared: dict[str, dict[str, str]] = {}
+        entries[stage] = {t: Entry(**e).compacted(shared) for t, e in by.items()}
     del raw
     return Upstream(out, entries)
 
@@ -246,7 +245,7 @@ def child(phase: str, src: Path, out: Path, exports: bool) -> dict:
 
         stage, params = _stage_and_params(src, exports)
         r0 = _status("VmRSS")
-        upstream = _upstream(out, parts=False)
+        upstream = _upstream(out)
         extra["upstream_mb"] = (_status("VmRSS") - r0) / 1024
         done = {}
         for task in stage.tasks(params, upstream):
@@ -262,7 +261,7 @@ def child(phase: str, src: Path, out: Path, exports: bool) -> dict:
     elif phase == "publish":
         stage, params = _stage_and_params(src, exports)
         r0 = _status("VmRSS")
-        upstream = _upstream(out, parts=True)
+        upstream = _upstream(out)
         extra["upstream_mb"] = (_status("VmRSS") - r0) / 1024
         stage.publish(params, upstream, out)
     elif phase == "validate":

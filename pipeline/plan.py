@@ -13,7 +13,6 @@ import contextlib
 import dataclasses
 import hashlib
 import json
-import sys
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -24,13 +23,14 @@ from pipeline.keys import key_parts, params_digest, seed_key, sha256_file, sha25
 from pipeline.stage import Stage, Task, Upstream
 from pipeline.store import Entry, Manifest, stage_dir
 
-# A manifest line is ~2.6 kB of JSON, most of it the key's parts (one code digest per source file, the same for
-# every task of a stage). Reading a manifest shares the repeated strings, so a stage's entries in memory grow
-# by ~1 kB per task instead of ~10 kB: at 1,000 objects the engine holds thousands of them at once.
+# A manifest line is ~2.6-6 kB of JSON, most of it the key's parts (one code digest per source file, the same for
+# every task of a stage) and the metadata. The engine holds every entry of every stage it plans (~5,000 at 1,000
+# objects), so it holds them compact (Manifest.entries(compact=True)): 26 -> 7 MB at 1,000 objects.
 
 
 def read_entries(manifest: Manifest) -> dict[str, Entry]:
-    """:meth:`Manifest.entries` with each repeated string of the entries' key parts held once in memory.
+    """:meth:`Manifest.entries` as the engine holds them (``compact=True``: the key parts cut to ``stage``, the
+    metadata as its JSON text).
 
     Inside :func:`one_check_per_shard` a manifest is parsed once while it stays the same file (path, size,
     mtime, inode; a commit appends a line, so it grows): a run reads a stage's manifest when it plans the stage,
@@ -41,11 +41,7 @@ def read_entries(manifest: Manifest) -> dict[str, Entry]:
         cached = _manifests.get(str(manifest.path))
         if cached is not None and cached[0] == stamp:
             return dict(cached[1])
-    shared: dict[str, str] = {}
-    entries = {
-        key: dataclasses.replace(entry, parts={sys.intern(k): shared.setdefault(v, v) for k, v in entry.parts.items()})
-        for key, entry in manifest.entries().items()
-    }
+    entries = manifest.entries(compact=True)
     if stamp is not None and _manifests is not None and _manifest_stamp(manifest) == stamp:
         _manifests[str(manifest.path)] = (stamp, entries)
     return dict(entries)

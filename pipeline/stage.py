@@ -99,7 +99,7 @@ class Upstream:
 
     def meta(self, stage: str, task_id: str) -> dict[str, Any]:
         """The small metadata the task stored in the manifest."""
-        return dict(self.entry(stage, task_id).meta)
+        return self.entry(stage, task_id).meta_dict()
 
     def keys(self, needs: Mapping[str, Sequence[str]] | None) -> dict[str, dict[str, str]]:
         """``{stage: {task_id: key}}`` for what a task reads: this enters the task's own key."""

@@ -9,7 +9,7 @@ from typing import Any
 
 from pipeline.fingerprint import module_cache
 from pipeline.keys import changed_parts
-from pipeline.plan import Project, check_shards, one_check_per_shard, plan, read_entries, shard_ok
+from pipeline.plan import PlannedTask, Project, check_shards, one_check_per_shard, plan, read_entries, shard_ok
 from pipeline.scheduler import WARNING_TASKS_SHOWN
 from pipeline.stage import Upstream, topological_order
 from pipeline.store import Entry, Manifest, stage_dir
@@ -78,6 +78,7 @@ def _status(project: Project, config: Any, targets: Sequence[str] | None) -> lis
         own_intact: dict[str, Entry] = {}
         own_redo: dict[str, Entry] = {}
         new_work = False
+        stale: list[tuple[PlannedTask, str]] = []
         for p in planned:
             entry = entries.get(p.key)
             if entry is not None and entry.status == "ok":
@@ -89,8 +90,12 @@ def _status(project: Project, config: Any, targets: Sequence[str] | None) -> lis
             else:
                 new_work = True
                 old = by_task.get(p.task.id)
-                for r in (changed_parts(old.parts, p.parts) or ["its key changed"]) if old is not None else []:
-                    reasons.setdefault(r, []).append(p.task.id)
+                if old is not None:
+                    stale.append((p, old.key))
+        old_parts = manifest.parts({key for _, key in stale}) if stale else {}
+        for p, key in stale:
+            for r in changed_parts(old_parts.get(key, {}), p.parts) or ["its key changed"]:
+                reasons.setdefault(r, []).append(p.task.id)
         intact[stage.name], redo[stage.name] = own_intact, own_redo
         st.missing = len(planned) - st.done - st.failed
         st.reasons = [f"{len(ids)} task(s): {r}" for r, ids in sorted(reasons.items())]

@@ -23,7 +23,7 @@ import json
 import os
 import socket
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +49,39 @@ def stage_dir(out: str | os.PathLike, stage: str) -> Path:
     return Path(out) / SHARDS / stage
 
 
+class MetaText(Mapping[str, Any]):
+    """An entry's ``meta`` held as its compact JSON text and decoded on each read.
+
+    Why: the engine holds every shard's entry of every stage it plans (at 1,000 objects, ~5,000), and decoded
+    metadata (per-object counts, outcome tables) is ~3x its text in memory. Read it whole with :meth:`to_dict`
+    (a ``Mapping`` lookup decodes the text each time).
+    """
+
+    __slots__ = ("text",)
+
+    def __init__(self, text: str):
+        self.text = text
+
+    def to_dict(self) -> dict[str, Any]:
+        """The metadata as a fresh dict."""
+        return json.loads(self.text)
+
+    def __getitem__(self, name: str) -> Any:
+        return self.to_dict()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.to_dict())
+
+    def __len__(self) -> int:
+        return len(self.to_dict())
+
+    def __deepcopy__(self, memo: dict) -> dict[str, Any]:
+        return self.to_dict()  # so that dataclasses.asdict (Entry.to_json) writes the plain dict
+
+    def __repr__(self) -> str:
+        return f"MetaText({self.text!r})"
+
+
 @dataclasses.dataclass(frozen=True)
 class Entry:
     """One manifest line: the record of a finished (or failed) task."""
@@ -72,8 +105,10 @@ class Entry:
     machine's load, CPU time does not). 0 in manifests written before the field existed."""
     parts: dict[str, str] = dataclasses.field(default_factory=dict)
     """The key's components (see :func:`pipeline.keys.key_parts`), to explain staleness."""
-    meta: dict[str, Any] = dataclasses.field(default_factory=dict)
-    """Small stage-defined metadata (row counts, warnings) that downstream ``tasks()`` may read."""
+    meta: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    """Small stage-defined metadata (row counts, warnings) that downstream ``tasks()`` may read: a dict, or a
+    :class:`MetaText` in the entries the engine holds (``Manifest.entries(compact=True)``); read it whole with
+    :meth:`meta_dict`."""
     error: str | None = None
     """Error text of a failed task."""
     seed: str | None = None
@@ -82,6 +117,20 @@ class Entry:
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), sort_keys=True, separators=(",", ":"))
+
+    def compacted(self, stage_parts: dict[str, dict[str, str]] | None = None) -> Entry:
+        """This entry as the engine holds it (:meth:`Manifest.entries` with ``compact=True``): the key's parts cut
+        to ``stage`` (one dict per stage part, shared through ``stage_parts``), the metadata as a
+        :class:`MetaText`."""
+        stage = self.parts.get("stage")
+        shared = {} if stage_parts is None else stage_parts
+        parts = {} if stage is None else shared.setdefault(stage, {"stage": stage})
+        meta = self.meta if isinstance(self.meta, MetaText) else MetaText(json.dumps(self.meta, separators=(",", ":")))
+        return dataclasses.replace(self, parts=parts, meta=meta)
+
+    def meta_dict(self) -> dict[str, Any]:
+        """:attr:`meta` as a fresh dict."""
+        return self.meta.to_dict() if isinstance(self.meta, MetaText) else dict(self.meta)
 
 
 def shard_path(stage_dir: Path, key: str, ext: str) -> Path:
@@ -135,22 +184,43 @@ class Manifest:
         self.stage_dir = Path(stage_dir)
         self.path = self.stage_dir / MANIFEST
 
-    def entries(self) -> dict[str, Entry]:
-        """The latest entry per key (a later line overrides an earlier one, e.g. a retried failure)."""
+    def entries(self, *, compact: bool = False) -> dict[str, Entry]:
+        """The latest entry per key (a later line overrides an earlier one, e.g. a retried failure).
+
+        ``compact=True`` gives the entries as the engine holds them, a third of the memory: the key's parts cut
+        to its ``stage`` part (the rest, one code digest per source file, only explains staleness:
+        :meth:`parts`), the metadata as a :class:`MetaText`.
+        """
         out: dict[str, Entry] = {}
+        stage_parts: dict[str, dict[str, str]] = {}
+        for fields in self._lines():
+            try:
+                entry = Entry(**fields)
+            except TypeError:
+                continue  # not an entry of this version's fields
+            out[entry.key] = entry.compacted(stage_parts) if compact else entry
+        return out
+
+    def parts(self, keys: Collection[str]) -> dict[str, dict[str, str]]:
+        """The full key parts of the entries of ``keys`` (the latest line of each), by key."""
+        wanted = set(keys)
+        return {f["key"]: f.get("parts", {}) for f in self._lines() if f.get("key") in wanted}
+
+    def _lines(self) -> Iterator[dict[str, Any]]:
+        """Each committed line as a dict, in file order."""
         if not self.path.exists():
-            return out
+            return
         with open(self.path) as f:
             for line in f:
                 line = line.strip()
                 if not line:
                     continue
                 try:
-                    entry = Entry(**json.loads(line))
-                except (json.JSONDecodeError, TypeError):
+                    fields = json.loads(line)
+                except json.JSONDecodeError:
                     continue  # a line cut short by a kill: that task is simply not committed
-                out[entry.key] = entry
-        return out
+                if isinstance(fields, dict):
+                    yield fields
 
     def append(self, entry: Entry) -> None:
         """Commit ``entry``: append one line and fsync, so it survives a kill right after."""

@@ -158,8 +158,9 @@ class TaskView:
 def execute_task(
     stage: Stage, planned: PlannedTask, params: Any, upstream: Upstream | TaskView, stage_dir: Path, ctx: RunContext
 ) -> Entry:
-    """Run one task and write its shard; never raises (a failure becomes a ``failed`` entry). ``upstream`` may be
-    a :class:`TaskView`, made into the task's view here."""
+    """Run one task and write its shard; never raises (a failure becomes a ``failed`` entry). ``upstream`` is a
+    :class:`TaskView` or an :class:`~pipeline.stage.Upstream` (a stage's whole view, from a cluster), made into the
+    task's view (``Upstream.subset(task.needs)``) here."""
     in_worker = multiprocessing.parent_process() is not None
     if in_worker and threading.current_thread() is threading.main_thread():
         # Ctrl-C reaches the whole process group: the parent reports it once and stops; workers stay quiet.
@@ -178,8 +179,8 @@ def _execute_task(
     task, key = planned.task, planned.key
     final = shard_path(stage_dir, key, stage.ext)
     try:
-        if isinstance(upstream, TaskView):
-            upstream = upstream.upstream()
+        # A cluster ships the stage's whole view: what the task reads is cut here (idempotent on a cut view).
+        upstream = upstream.upstream() if isinstance(upstream, TaskView) else upstream.subset(task.needs)
         rng = rng_for_key(planned.seed)
         with atomic_path(final) as tmp:
             meta = stage.run(task, params, upstream, rng, tmp, ctx) or {}

@@ -218,8 +218,16 @@ class LiftState:
         non-backdrivable gripper take (with them a finger pressed 3 mm into the target could pass as a brush), and
         support and clutter are checked on the same commanded gripper so that the first kind of collision on the
         way is the pre-filter's. The live contacts (:meth:`contact_code`) add what only the simulation sees."""
-        return self._static.code(self._qpos_init, self._mocap_pos, self._mocap_quat, self._ctrl[self.index.act],
-                                 roles, allowance)
+        return self.commanded_code(self._mocap_pos, self._mocap_quat, self._ctrl[self.index.act], roles, allowance)
+
+    def commanded_code(self, hand_pos: np.ndarray, hand_quat: np.ndarray, opening: float, roles: np.ndarray,
+                       allowance: np.ndarray | None = None) -> int | None:
+        """The pre-filter's check of :meth:`_static_code` for a gripper commanded to ``hand_pos (3,)`` /
+        ``hand_quat (4,)`` with its pads ``opening`` m apart, against the scene as placed (the initial ``qpos``);
+        ``allowance (ngeom,)`` m, None: the table protocol's touch rule. The MuJoCo Warp backend asks it for each
+        world (:mod:`graspgen.sim.warp_table`)."""
+        return self._static.code(self._qpos_init, hand_pos, hand_quat, opening, roles,
+                                 self._allowance if allowance is None else allowance)
 
     def _moved(self, pos0: np.ndarray, quat0: np.ndarray) -> np.ndarray:
         """``(n_objects,) bool``: which objects' centres of mass moved more than ``max_target_shift`` or turned more

@@ -103,8 +103,7 @@ class TableRun(BatchRun):
         """The pre-filter's check of world ``i``'s gripper as commanded now (the mocap row last written)."""
         cpu = self.sim.cpu
         hand = self.pre[i] + self.approach[self.k[i] - 1] * self.R[i, :, 2]
-        return cpu._static.code(cpu._qpos_init, hand, self.quat[i], self.open_width[i], self.roles[i],
-                                cpu._allowance)
+        return cpu.commanded_code(hand, self.quat[i], self.open_width[i], self.roles[i])
 
     def _check_before(self, worlds: np.ndarray, a: dict) -> None:
         """The approach rule (``check_approach``), then closing for the worlds whose approach ended."""

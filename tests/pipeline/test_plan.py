@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import pickle
+
 import numpy as np
 import pytest
 
@@ -60,15 +64,22 @@ def test_upstream_digests_name_the_unknown_stage(tmp_path):
         digests.keys({"objects": ["object_99"]})
 
 
-def test_read_entries_equal_the_manifest_and_share_strings(tmp_path):
+def test_read_entries_are_the_manifest_compact(tmp_path):
     manifest = Manifest(tmp_path)
     for i in range(3):
-        manifest.append(Entry(key=f"k{i}", task=f"t{i}", status="ok", file=f"{i}.h5",
-                              parts={"code": "d" * 64 + "", "params": str(i)}))
-    plain, shared = manifest.entries(), read_entries(manifest)
-    assert plain == shared
-    codes = [e.parts["code"] for e in shared.values()]
-    assert all(c is codes[0] for c in codes)
+        manifest.append(Entry(key=f"k{i}", task=f"t{i}", status="ok", file=f"{i}.h5", meta={"n": i, "w": ["x"]},
+                              parts={"code": "d" * 64, "params": str(i), "stage": "s@1"}))
+    manifest.append(Entry(key="k1", task="t1", status="failed", error="boom", parts={"stage": "s@1"}))
+    plain, compact = manifest.entries(), read_entries(manifest)
+    assert list(plain) == list(compact) and compact["k1"].status == "failed"
+    for key, entry in compact.items():
+        assert entry.parts == {"stage": "s@1"} and entry.meta == plain[key].meta
+        assert entry.meta_dict() == plain[key].meta and entry.meta.get("n") == plain[key].meta.get("n")
+        assert dataclasses.replace(entry, parts=plain[key].parts, meta=plain[key].meta) == plain[key]
+        assert Entry(**json.loads(entry.to_json())).meta == plain[key].meta  # writes the plain dict back
+        assert pickle.loads(pickle.dumps(entry)) == entry  # shipped to workers
+    assert compact["k0"].parts is compact["k2"].parts  # one dict per stage part
+    assert manifest.parts(["k0", "k1"]) == {"k0": plain["k0"].parts, "k1": {"stage": "s@1"}}
 
 
 def test_planned_keys_equal_the_plain_task_key(tmp_path):
