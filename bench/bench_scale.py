@@ -113,12 +113,19 @@ def _role(cmd: str, root_pid: int, pid: int, cluster: bool) -> str:
 class PeakMemory:
     """Samples the peak resident memory and the CPU seconds of a process tree (and of extra pids) until stopped,
     by role. A process's CPU is its last sample: the last 0.2 s of each process can be missed, so the roles' CPU
-    sums to a little less than the tree's (``RUSAGE_CHILDREN``, which :func:`run_gen` reports as the total)."""
+    sums to a little less than the tree's (``RUSAGE_CHILDREN``, which :func:`run_gen` reports as the total). The
+    ``extra`` processes (a cluster's, which outlive one ``gen`` process) count from their CPU when sampling starts."""
 
     def __init__(self, root_pid: int, extra: tuple[int, ...] = ()):
         self.root_pid, self.extra = root_pid, extra
         self.peaks: dict[int, tuple[int, str]] = {}
         self.cpu: dict[int, float] = {}
+        self.cpu_before: dict[int, float] = {}
+        for pid in extra:
+            for child in _descendants(pid):
+                got = _peak_kb(child)
+                if got is not None:
+                    self.cpu_before[child] = got[2]
         self.in_cluster: set[int] = set()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
@@ -146,7 +153,8 @@ class PeakMemory:
         for pid, (kb, cmd) in self.peaks.items():
             role = _role(cmd, self.root_pid, pid, pid in self.in_cluster)
             by_role[role] = max(by_role.get(role, 0.0), round(kb / 1024, 1))
-            cpu[role] = round(cpu.get(role, 0.0) + self.cpu.get(pid, 0.0), 2)
+            spent = self.cpu.get(pid, 0.0) - self.cpu_before.get(pid, 0.0)
+            cpu[role] = round(cpu.get(role, 0.0) + spent, 2)
         return by_role, cpu
 
 

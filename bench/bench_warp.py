@@ -204,9 +204,14 @@ def speed_runs(path: Path, grasps: int, protocol: str, args, device: str, batche
 
 
 def _files(args) -> list[tuple[Path, int]]:
-    files = [(f, args.grasps) for f in sorted(args.calibration.glob("*.h5"))[: args.objects]]
+    calibration = sorted(args.calibration.glob("*.h5"))
+    if args.objects > 0 and not calibration:
+        raise SystemExit(f"--calibration {args.calibration}: no ACRONYM files (*.h5) there")
+    files = [(f, args.grasps) for f in calibration[: args.objects]]
     if args.learn_objects > 0:
         learn = sorted(args.learn.glob("*.h5"))
+        if not learn:
+            raise SystemExit(f"--learn {args.learn}: no ACRONYM files (*.h5) there")
         files += [(learn[i], args.learn_grasps) for i in subset(len(learn), args.learn_objects)]
     return files
 
