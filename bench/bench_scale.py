@@ -20,13 +20,16 @@ apart. The same samples of ``/proc`` give each process's CPU, so the overhead is
 
 With ``--backend dask`` (or ``both``) the same runs go to a cluster started here as separate processes:
 ``dask scheduler`` on 127.0.0.1 and ``dask worker`` processes (``--jobs`` of them, one thread each), named in the
-config by ``run.backend: dask`` and ``run.dask_address``. Their CPU is counted when they are stopped.
+config by ``run.backend: dask`` and ``run.dask_address``, with dask's monitoring turned down for a batch run
+(:data:`BATCH_DASK_CONFIG`, as docs/cluster.md advises; ``--dask-defaults`` keeps dask's own). Their CPU is counted
+when they are stopped.
 
 The cost model printed at the end extrapolates the largest run to ACRONYM's 8,872 objects x 2,000 grasps: per-object
 CPU of the object stages as measured (preparation does not depend on the grasp count), the grasp stages' CPU scaled
 by 2,000 / the run's grasps per object, peak memory as the largest measured (flat in N when the streaming holds).
 
-Run: ``python -m bench.bench_scale [--sizes 12 100 1000] [--jobs 2] [--backend loky|dask|both] [--work DIR]``;
+Run: ``python -m bench.bench_scale [--sizes 12 100 1000] [--jobs 2] [--backend loky|dask|both] [--dask-defaults]
+[--work DIR]``;
 writes ``bench/results_scale.json``.
 """
 
@@ -225,22 +228,37 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-class DaskCluster:
-    """``dask scheduler`` and ``dask worker`` processes on 127.0.0.1, started and stopped here."""
+BATCH_DASK_CONFIG = {
+    "DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False",
+    "DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL": "1s",
+    "DASK_DISTRIBUTED__ADMIN__SYSTEM_MONITOR__INTERVAL": "5s",
+    "DASK_DISTRIBUTED__ADMIN__SYSTEM_MONITOR__GIL__ENABLED": "False",
+    "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL": "1s",
+}
+"""dask.distributed settings of the cluster's processes for a batch run (docs/cluster.md): its defaults sample every
+worker's stack every 10 ms (the profiler behind the dashboard), check the event loop every 20 ms, poll the system
+every 500 ms and the nanny's child every 100 ms, which the processes pay all the time they are up. ``--dask-defaults``
+keeps dask's own."""
 
-    def __init__(self, workers: int, work: Path):
+
+class DaskCluster:
+    """``dask scheduler`` and ``dask worker`` processes on 127.0.0.1, started and stopped here (with
+    :data:`BATCH_DASK_CONFIG` unless ``defaults``)."""
+
+    def __init__(self, workers: int, work: Path, defaults: bool = False):
         port = _free_port()
         self.address = f"tcp://127.0.0.1:{port}"
         dask = str(Path(sys.executable).parent / "dask")
         log = open(work / "dask.log", "a")  # noqa: SIM115 - closed in stop()
         self._log = log
+        env = {**os.environ, **({} if defaults else BATCH_DASK_CONFIG)}
         self.procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                        "--no-dashboard"], stdout=log, stderr=log, cwd=ROOT)]
+                                        "--no-dashboard"], stdout=log, stderr=log, cwd=ROOT, env=env)]
         time.sleep(3)
         self.procs.append(subprocess.Popen(
             [dask, "worker", self.address, "--nworkers", str(workers), "--nthreads", "1", "--no-dashboard",
              "--memory-limit", "0", "--local-directory", str(work / "dask-worker")],
-            stdout=log, stderr=log, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}))
+            stdout=log, stderr=log, cwd=ROOT, env={**env, "PYTHONPATH": str(ROOT)}))
         time.sleep(5)
 
     @property
@@ -259,12 +277,12 @@ class DaskCluster:
         self._log.close()
 
 
-def measure(n: int, jobs: int, backend: str, work: Path) -> dict:
+def measure(n: int, jobs: int, backend: str, work: Path, dask_defaults: bool = False) -> dict:
     out = work / f"{backend}_n{n}"
     cache = work / f"cache_{backend}_n{n}"
     shutil.rmtree(out, ignore_errors=True)
     shutil.rmtree(cache, ignore_errors=True)
-    cluster = DaskCluster(jobs, work) if backend == "dask" else None
+    cluster = DaskCluster(jobs, work, dask_defaults) if backend == "dask" else None
     cpu_cluster0 = _children_cpu()
     try:
         config = write_config(n, out, cache, jobs, cluster.address if cluster else None)
@@ -385,6 +403,8 @@ def main() -> None:
     parser.add_argument("--backend", choices=("loky", "dask", "both"), default="loky")
     parser.add_argument("--work", type=Path, default=None, help="work folder (default: a temp folder, removed)")
     parser.add_argument("--json", type=Path, default=ROOT / "bench" / "results_scale.json")
+    parser.add_argument("--dask-defaults", action="store_true",
+                        help="start the dask cluster with dask's own settings, not BATCH_DASK_CONFIG")
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="bench_scale_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -392,7 +412,7 @@ def main() -> None:
     rows = []
     for backend in backends:
         for n in args.sizes:
-            rows.append(measure(n, args.jobs, backend, work))
+            rows.append(measure(n, args.jobs, backend, work, args.dask_defaults))
             print(json.dumps({k: v for k, v in rows[-1].items() if k != "stages"}), flush=True)
             args.json.write_text(json.dumps({"machine": platform.platform(), "rows": rows}, indent=2) + "\n")
     cols = ("backend", "objects", "task_cpu_s_per_object", "overhead_share", "wall_s", "status_s", "noop_rerun_s",

@@ -28,6 +28,7 @@ import trimesh
 from scipy.spatial import QhullError
 
 from graspgen.geometry.mesh_io import _check_mesh, _label
+from graspgen.geometry.part_merge import ConvexPart, convex_part, merge_convex_parts
 from graspgen.geometry.slack import HullSlack, hull_slack, outward_slack_p95
 from graspgen.validation import check, check_choice, check_instance, check_number, check_positive_int
 
@@ -38,7 +39,8 @@ _log = logging.getLogger(__name__)
 
 
 # Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss.
-_COACD_CACHE_FORMAT = 2  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine
+_COACD_CACHE_FORMAT = 3  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine;
+# 3: CoACD's pieces merged by bridge depth (part_merge), the refinement re-merges and cuts at half the threshold
 
 # A mesh whose volume is within this fraction of its hull's volume is treated as convex.
 _CONVEX_VOLUME_TOLERANCE = 1e-6
@@ -48,6 +50,12 @@ _MIN_PART_VOLUME_RATIO = 1e-6
 
 
 _PREPROCESS_MODES = ("unless_watertight", "auto", "on", "off")
+
+# The refinement's finer cut (CoacdParams.refine_excess), by how many pieces the first cut made per allowed part: a
+# cut at a quarter of the threshold makes 5-7 times the pieces, at half 2-3.5 times (../shared/learn's bowls, mugs
+# and knives), and beyond about four times the cap the merge back down to it bridges again what the cut separated.
+_QUARTER_CUT_PIECES = 2
+_HALF_CUT_PIECES = 4
 
 
 def _is_int(value: object) -> bool:
@@ -64,7 +72,8 @@ class CoacdParams:
     the mesh to its bounding box): lower gives more, tighter parts."""
 
     max_convex_hull: int = 16
-    """Upper bound on the number of parts; -1 means no limit."""
+    """Upper bound on the number of parts (CoACD's pieces are merged down to it,
+    :func:`graspgen.geometry.part_merge.merge_convex_parts`); -1 means no limit."""
 
     preprocess_resolution: int = 30
     """Voxel resolution (cells per axis) of the manifold pre-processing of non-watertight input."""
@@ -73,29 +82,33 @@ class CoacdParams:
     """Number of surface samples CoACD uses to measure concavity (CoACD takes at least 1000 where it scales them by
     area, so fewer saves little)."""
 
-    mcts_iterations: int = 20
-    """Monte-Carlo tree search iterations per cut: CoACD's search budget, which its time is about proportional to.
-    20 of ``mcts_nodes`` 10 since issue 24 (50 of 20 before), judged by the hull-slack criterion on 17
-    ../shared/learn meshes (``bench/bench_prep.py`` reports each mesh's p95 slack beside its time): as many meshes
-    meet ``slack_p95`` as before (per mesh the randomised search moves p95 both ways, -0.5 to +1.4 mm), at 35-40 %
-    less CoACD time on the refined bowls and 11 % less in all."""
+    mcts_iterations: int = 10
+    """Monte-Carlo tree search iterations per cut: CoACD's search budget. 10 of ``mcts_nodes`` 5 since issue 24's
+    part merge (20 of 10 before, 50 of 20 at first): with CoACD's own merge off, the cost is the cuts themselves,
+    and on ../shared/learn's meshes a smaller search makes somewhat more pieces of about the same slack, at about
+    60 % of the time (a bowl: 136 pieces, slack p95 3.28 mm, 11.0 s -> 152 pieces, 3.28 mm, 6.3 s; a mug: 48,
+    2.28 mm, 2.7 s -> 61, 1.94 mm, 2.3 s)."""
 
     mcts_depth: int = 3
     """Maximum depth of the Monte-Carlo tree search (cuts looked ahead)."""
 
-    mcts_nodes: int = 10
-    """Child nodes expanded per Monte-Carlo tree search node (candidate cutting planes); 10 since issue 24 (20
-    before), with ``mcts_iterations``."""
+    mcts_nodes: int = 5
+    """Child nodes expanded per Monte-Carlo tree search node (candidate cutting planes); 5 since issue 24's part
+    merge, with ``mcts_iterations``."""
 
     seed: int = 0
     """CoACD's own random seed; the decomposition is a pure function of mesh, settings and this seed."""
 
-    refine_excess: float = 0.1
+    refine_excess: float = 0.01
     """If the parts' total volume exceeds the mesh's by more than this fraction, they may bridge a concavity the
     gripper could reach (a thin-walled cup or bowl: parts filling its cavity make every grasp on its rim collide);
-    if their hull slack (p95, :func:`hull_slack`) is also over ``slack_p95``, the mesh is decomposed once more with
-    a quarter of the threshold and four times ``max_convex_hull``, and the result of lower slack kept. 0 turns
-    this off."""
+    if their hull slack (p95, :func:`hull_slack`) is also over ``slack_p95``, the parts are refined: where CoACD
+    made at most four times ``max_convex_hull`` pieces, the mesh is cut again, at a quarter of the threshold where
+    it made at most twice ``max_convex_hull``, else at half (a cut at a quarter makes 5-7 times the pieces, at half
+    2-3.5 times; more pieces than that are merged back to the cap, which bridges again what the cut separated, at
+    the cost of the cut); otherwise its pieces are merged again; either down to four times ``max_convex_hull``,
+    and the parts of lower slack are kept. 0 turns this off; 0.1 before issue 24's part merge, whose parts bridge
+    less volume for the same slack."""
 
     preprocess_mode: str = "unless_watertight"
     """CoACD's manifold pre-processing (rebuilding the mesh as a level set on a voxel grid of
@@ -114,6 +127,11 @@ class CoacdParams:
     """A watertight mesh whose convex hull exceeds its volume by at most this fraction is tested as near-convex:
     its hull alone is used if its slack meets ``slack_p95``. 0 only skips exactly convex meshes (1e-6)."""
 
+    free_merge_depth: float = 2.5e-4
+    """CoACD's neighbouring pieces are merged, shallowest first, while the hull of a pair stands at most this far
+    (m) outside the pieces it is made of (:func:`graspgen.geometry.part_merge.bridge_depth`), even below
+    ``max_convex_hull``: a quarter of ``slack_p95``, so what it adds stays well inside the slack criterion."""
+
     slack_samples: int = 4000
     """Area samples of each hull-slack measurement taken by the decision rules above (seeded from the
     settings' ``seed``: deterministic)."""
@@ -124,6 +142,7 @@ class CoacdParams:
         check_choice("preprocess_mode", self.preprocess_mode, _PREPROCESS_MODES)
         check_number("slack_p95", self.slack_p95, low=0.0, low_open=True)
         check_number("near_convex_excess", self.near_convex_excess, low=0.0)
+        check_number("free_merge_depth", self.free_merge_depth, low=0.0)
         check_positive_int("slack_samples", self.slack_samples)
         hulls = self.max_convex_hull
         check("max_convex_hull", _is_int(hulls) and (hulls >= 1 or hulls == -1), "be a positive integer or -1", hulls)
@@ -145,13 +164,16 @@ def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tup
     A watertight mesh whose volume equals its convex hull's within 1e-6 (relative) is already convex, and one
     whose hull exceeds its volume by at most ``params.near_convex_excess`` and stands out of it by at most
     ``params.slack_p95`` (p95 hull slack, :func:`hull_slack`) is convex as far as a gripper can tell; CoACD would
-    only re-approximate either, so its hull is returned as the single part. Otherwise CoACD runs with ``params``
-    (its manifold pre-processing as ``params.preprocess_mode`` says); each part is replaced by its own convex hull
-    (CoACD's output is not always exactly convex and MuJoCo needs it to be), parts below 1e-6 of the hull volume
-    are dropped, and the rest are sorted by centroid (x, then y, then z) and vertex count so that the order does
-    not depend on CoACD internals. If every part is dropped, the mesh's convex hull is the single part. Parts
-    exceeding the volume by more than ``params.refine_excess`` with a slack over ``params.slack_p95`` are
-    refined once (see :class:`CoacdParams`).
+    only re-approximate either, so its hull is returned as the single part. Otherwise CoACD cuts the mesh with
+    ``params`` (its manifold pre-processing as ``params.preprocess_mode`` says, its own merge off); each piece is
+    replaced by its own convex hull (CoACD's output is not always exactly convex and MuJoCo needs it to be),
+    pieces below 1e-6 of the hull volume are dropped, and the rest are merged by how far a merged pair stands
+    out of its pieces (:func:`graspgen.geometry.part_merge.merge_convex_parts`: down to
+    ``params.max_convex_hull``, and further while a merge costs at most ``params.free_merge_depth``). The parts
+    are sorted by centroid (x, then y, then z) and vertex count so that the order does not depend on CoACD
+    internals. If every piece is dropped, the mesh's convex hull is the single part. Parts exceeding the volume
+    by more than ``params.refine_excess`` with a slack over ``params.slack_p95`` are refined (see
+    :class:`CoacdParams`).
 
     Parameters
     ----------
@@ -171,37 +193,57 @@ def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tup
     closed = _is_closed(mesh)
     if closed and (_is_convex(mesh, hull) or _near_convex(mesh, hull, params)):
         return [_part_arrays(hull)]
-    result, excess = _decompose(mesh, hull, params, closed)
-    if params.refine_excess > 0 and excess > params.refine_excess:
-        slack = _slack_p95(mesh, result, params)
-        if slack > params.slack_p95:
-            finer = dataclasses.replace(
-                params,
-                threshold=params.threshold / 4,
-                max_convex_hull=-1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull,
-                refine_excess=0.0,
-            )
-            refined, _ = _decompose(mesh, hull, finer, closed)
-            refined_slack = _slack_p95(mesh, refined, params)
-            _log.info("%s: parts exceed the volume by %.0f%%, slack p95 %.2f mm; refined: %.2f mm", _label(mesh),
-                      100 * excess, 1e3 * slack, 1e3 * refined_slack)
-            if refined_slack < slack:
-                return refined
-    return result
-
-
-def _decompose(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdParams,
-               closed: bool) -> tuple[list[tuple[np.ndarray, np.ndarray]], float]:
-    """CoACD's parts as sorted convex hulls (slivers dropped; the mesh's hull if none is left), and their volume
-    excess over the mesh (:func:`_volume_excess`)."""
-    raw = _run_coacd(mesh, params, closed)
-    parts = [_convex_part(vertices, faces) for vertices, faces in raw]
-    min_volume = _MIN_PART_VOLUME_RATIO * hull.volume
-    kept = [part for part in parts if part is not None and part.volume > min_volume]
-    if not kept:
+    pieces = _coacd_pieces(mesh, hull, params, closed)
+    if not pieces:
         _log.warning("%s: CoACD returned no usable part, using the convex hull", _label(mesh))
-        return [_part_arrays(hull)], 0.0
-    return [_part_arrays(part) for part in _sorted_parts(kept)], _volume_excess(mesh, kept)
+        return [_part_arrays(hull)]
+    parts = _merged(pieces, params.max_convex_hull, params)
+    if params.refine_excess > 0 and _volume_excess(mesh, parts) > params.refine_excess:
+        slack = _slack_p95(mesh, parts, params)
+        if slack > params.slack_p95:
+            parts = _refined(mesh, hull, closed, pieces, (parts, slack), params)
+    return [_part_arrays(part) for part in _sorted_parts(parts)]
+
+
+def _refined(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, closed: bool, pieces: list[ConvexPart],
+             first: tuple[list[ConvexPart], float], params: CoacdParams) -> list[ConvexPart]:
+    """The parts of lower slack of ``first`` (parts, slack p95) and a second try merged down to four times
+    ``max_convex_hull``: a finer cut where there are at most four times ``max_convex_hull`` ``pieces`` (at a
+    quarter of the threshold where there are at most twice ``max_convex_hull``, else at half), else the same
+    pieces merged again."""
+    cap = -1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull
+    tries = {"first": first}
+    if cap == -1 or len(pieces) <= _HALF_CUT_PIECES * params.max_convex_hull:
+        divisor = 4 if cap == -1 or len(pieces) <= _QUARTER_CUT_PIECES * params.max_convex_hull else 2
+        finer = _coacd_pieces(mesh, hull, dataclasses.replace(params, threshold=params.threshold / divisor), closed)
+        if finer:
+            recut = _merged(finer, cap, params)
+            tries[f"cut at 1/{divisor}"] = (recut, _slack_p95(mesh, recut, params))
+    elif len(pieces) > params.max_convex_hull:
+        # Only where no finer cut is affordable: on ../shared/learn's meshes the finer cut had the lower slack
+        # every time both were tried (25 of 25).
+        remerged = _merged(pieces, cap, params)
+        tries["merged again"] = (remerged, _slack_p95(mesh, remerged, params))
+    best = min(tries, key=lambda name: tries[name][1])  # the first of equals: dicts keep their order
+    _log.info("%s: %d pieces exceed the volume by %.0f%%, slack p95 %.2f mm; refined: %s, %.2f mm (of %s)",
+              _label(mesh), len(pieces), 100 * _volume_excess(mesh, first[0]), 1e3 * first[1], best,
+              1e3 * tries[best][1], ", ".join(tries))
+    return tries[best][0]
+
+
+def _coacd_pieces(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdParams,
+                  closed: bool) -> list[ConvexPart]:
+    """CoACD's pieces as convex hulls, slivers (below 1e-6 of the mesh's hull volume) dropped."""
+    min_volume = _MIN_PART_VOLUME_RATIO * hull.volume
+    pieces = [_convex_part(vertices, faces) for vertices, faces in _run_coacd(mesh, params, closed)]
+    return [piece for piece in pieces if piece is not None and piece.volume > min_volume]
+
+
+def _merged(pieces: list[ConvexPart], cap: int, params: CoacdParams) -> list[ConvexPart]:
+    """``pieces`` merged down to ``cap`` parts (-1: no bound) and while a merge costs at most
+    ``params.free_merge_depth``, each part as its convex hull."""
+    merged = merge_convex_parts([p.vertices for p in pieces], cap, params.free_merge_depth)
+    return [convex_part(points) for points in merged]
 
 
 def _is_closed(mesh: trimesh.Trimesh) -> bool:
@@ -217,12 +259,14 @@ def _near_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdPara
     return _slack_p95(mesh, [_part_arrays(hull)], params) <= params.slack_p95
 
 
-def _slack_p95(mesh: trimesh.Trimesh, parts: list[tuple[np.ndarray, np.ndarray]], params: CoacdParams) -> float:
-    """p95 hull slack (m) of the parts, from a generator seeded by the settings (the same parts: the same value)."""
-    return outward_slack_p95(mesh, parts, params.slack_samples, np.random.default_rng(params.seed))
+def _slack_p95(mesh: trimesh.Trimesh, parts: list, params: CoacdParams) -> float:
+    """p95 hull slack (m) of the parts (``(vertices, faces)`` pairs or :class:`ConvexPart`), from a generator seeded
+    by the settings (the same parts: the same value)."""
+    arrays = [_part_arrays(p) if isinstance(p, ConvexPart) else p for p in parts]
+    return outward_slack_p95(mesh, arrays, params.slack_samples, np.random.default_rng(params.seed))
 
 
-def _volume_excess(mesh: trimesh.Trimesh, parts: list[trimesh.Trimesh]) -> float:
+def _volume_excess(mesh: trimesh.Trimesh, parts: list[ConvexPart]) -> float:
     """How much the parts' summed volume exceeds the mesh's, as a fraction (0 for an open mesh: not measurable)."""
     if not mesh.is_watertight or mesh.volume <= 0:
         return 0.0
@@ -242,7 +286,8 @@ def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams, closed: bool) -> list
     return coacd.run_coacd(
         coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
         threshold=params.threshold,
-        max_convex_hull=params.max_convex_hull,
+        max_convex_hull=-1,
+        merge=False,  # merge_convex_parts merges, at a fraction of the cost of CoACD's all-pairs merge
         preprocess_mode=mode,
         preprocess_resolution=params.preprocess_resolution,
         resolution=params.resolution,
@@ -253,30 +298,28 @@ def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams, closed: bool) -> list
     )
 
 
-def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> trimesh.Trimesh | None:
-    """The convex hull of one CoACD part, or None when qhull cannot make one.
-
-    A flat or collinear part does not raise (trimesh retries qhull with joggle, ``QJ``, and returns a hull of no
-    volume, which the caller drops with the other slivers); qhull still raises ``QhullError`` on points it cannot
-    handle (an infinite coordinate) and scipy a ``ValueError`` on NaN. Anything else is a bug and propagates.
-    """
+def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> ConvexPart | None:
+    """The convex hull of one CoACD piece, or None when qhull cannot make one: a flat or collinear piece (no volume:
+    a sliver, dropped with the others), points qhull cannot handle (an infinite coordinate: ``QhullError``) or NaN
+    (scipy's ``ValueError``). Anything else is a bug and propagates. ``faces`` are not needed: the hull is of the
+    vertices."""
     if len(vertices) < 4:
         return None
     try:
-        return trimesh.Trimesh(np.asarray(vertices, dtype=np.float64), np.asarray(faces), process=False).convex_hull
+        return convex_part(vertices)
     except (QhullError, ValueError) as exc:
-        _log.debug("dropping a CoACD part with no convex hull (%s: %s)", type(exc).__name__, exc)
+        _log.debug("dropping a CoACD piece with no convex hull (%s: %s)", type(exc).__name__, exc)
         return None
 
 
-def _sorted_parts(parts: list[trimesh.Trimesh]) -> list[trimesh.Trimesh]:
+def _sorted_parts(parts: list[ConvexPart]) -> list[ConvexPart]:
     centroids = np.array([part.vertices.mean(axis=0) for part in parts])
     counts = np.array([len(part.vertices) for part in parts])
     order = np.lexsort((counts, centroids[:, 2], centroids[:, 1], centroids[:, 0]))
     return [parts[i] for i in order]
 
 
-def _part_arrays(part: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+def _part_arrays(part: trimesh.Trimesh | ConvexPart) -> tuple[np.ndarray, np.ndarray]:
     return (
         np.ascontiguousarray(part.vertices, dtype=np.float64),
         np.ascontiguousarray(part.faces, dtype=np.int32),

@@ -137,7 +137,32 @@ def outward_slack_p95(
     points = _boundary_samples(_Union.of(convex_parts), n_samples, rng)
     if not len(points):
         return 0.0
-    return float(np.percentile(np.maximum(_outside_distance(mesh, points), 0.0), 95))
+    return float(np.percentile(_top_outward(mesh, points, len(points) - int(np.floor(0.95 * (len(points) - 1)))), 95))
+
+
+_SIGN_BATCH = 256
+"""Points whose side of the mesh :func:`_top_outward` settles at a time (a batch's winding numbers cost ~0.1 s on a
+2,000-triangle mesh)."""
+
+
+def _top_outward(mesh: trimesh.Trimesh, points: np.ndarray, count: int) -> np.ndarray:
+    """``max(_outside_distance(mesh, points), 0)`` ``(n,)`` exact in its ``count`` largest values, the rest no larger
+    than the true ones and no larger than any of those: what a percentile needs, at a fraction of the winding
+    numbers. Points are settled farthest first; once ``count`` of them are outside, every point left is no farther
+    from the surface than they are, so its value (its distance, or 0 inside) cannot rank above them."""
+    distance = _surface_distance(mesh, points)
+    outward = np.where(distance > 1e-9, 0.0, distance)  # on the surface the sign does not matter
+    order = np.argsort(-distance, kind="stable")
+    order = order[distance[order] > 1e-9]
+    found = 0
+    for start in range(0, len(order), _SIGN_BATCH):
+        batch = order[start:start + _SIGN_BATCH]
+        outside = batch[np.abs(_winding_number(mesh, points[batch])) <= 0.5]
+        outward[outside] = distance[outside]
+        found += len(outside)
+        if found >= count:
+            break
+    return outward
 
 
 @dataclass(frozen=True)

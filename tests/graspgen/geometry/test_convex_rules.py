@@ -71,9 +71,10 @@ def test_deep_notch_or_no_near_convex_rule_goes_to_coacd(monkeypatch):
     recorder = Recorder([(hull.vertices, hull.faces)])
     monkeypatch.setattr(coacd, "run_coacd", recorder)
     assert hull.volume <= 1.05 * deep.volume  # within the volume gate: the slack decides
-    convex_decomposition(deep, FAST)
+    once = dataclasses.replace(FAST, refine_excess=0.0)  # the hull given back would be refined: one call each
+    convex_decomposition(deep, once)
     assert len(recorder.calls) == 1
-    convex_decomposition(notched_box(0.0005), CoacdParams(near_convex_excess=0.0))
+    convex_decomposition(notched_box(0.0005), CoacdParams(near_convex_excess=0.0, refine_excess=0.0))
     assert len(recorder.calls) == 2
 
 
@@ -116,17 +117,47 @@ def test_cavity_filled_but_not_reachable_is_not_refined(monkeypatch):
     assert len(recorder.calls) == 1
 
 
-def test_cavity_bridged_from_outside_is_refined_with_a_quarter_threshold(monkeypatch):
+def _cup() -> trimesh.Trimesh:
     outer = trimesh.creation.cylinder(radius=0.03, height=0.06, sections=24)
     inner = trimesh.creation.cylinder(radius=0.027, height=0.06, sections=24)
     inner.apply_translation((0, 0, 0.004))
     cup, _ = repair_mesh(outer.difference(inner, engine="manifold"))
-    hull = cup.convex_hull
-    recorder = Recorder([(hull.vertices, hull.faces)])
+    return cup
+
+
+def _slabs(mesh: trimesh.Trimesh, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``count`` boxes stacked along z filling the mesh's bounding box: pieces that bridge every cavity."""
+    low, high = mesh.bounds
+    edges = np.linspace(low[2], high[2], count + 1)
+    slabs = []
+    for z0, z1 in zip(edges[:-1], edges[1:]):
+        slab = trimesh.creation.box(bounds=[(low[0], low[1], z0), (high[0], high[1], z1)])
+        slabs.append((slab.vertices, slab.faces))
+    return slabs
+
+
+@pytest.mark.parametrize("pieces, thresholds", [(1, [1, 4]), (2 * FAST.max_convex_hull, [1, 4]),
+                                                (2 * FAST.max_convex_hull + 1, [1, 2]),
+                                                (4 * FAST.max_convex_hull, [1, 2]),
+                                                (4 * FAST.max_convex_hull + 1, [1])])
+def test_cavity_bridged_from_outside_is_refined_by_a_cut_the_cap_can_keep(monkeypatch, pieces, thresholds):
+    # Up to twice max_convex_hull pieces: cut again at a quarter of the threshold; up to four times: at half; more:
+    # only merged again (a finer cut would make more pieces than the cap keeps). CoACD never merges itself.
+    cup = _cup()
+    recorder = Recorder(_slabs(cup, pieces))
     monkeypatch.setattr(coacd, "run_coacd", recorder)
     convex_decomposition(cup, FAST)
-    assert [c["threshold"] for c in recorder.calls] == [FAST.threshold, FAST.threshold / 4]
-    assert recorder.calls[1]["max_convex_hull"] == 4 * FAST.max_convex_hull
+    assert [FAST.threshold / c["threshold"] for c in recorder.calls] == pytest.approx(thresholds)
+    assert all(c["merge"] is False and c["max_convex_hull"] == -1 for c in recorder.calls)
+
+
+def test_refinement_keeps_the_parts_of_lowest_slack():
+    cup = _cup()
+    coarse = dataclasses.replace(FAST, threshold=0.2, max_convex_hull=4, refine_excess=0.0)
+    bridged = convex_decomposition(cup, coarse)
+    refined = convex_decomposition(cup, dataclasses.replace(coarse, refine_excess=0.01))
+    rng = np.random.default_rng(0)
+    assert hull_slack(cup, refined, 4000, rng).p95 < hull_slack(cup, bridged, 4000, rng).p95
 
 
 def test_decomposition_is_deterministic_and_keyed_by_the_new_settings():
@@ -136,12 +167,14 @@ def test_decomposition_is_deterministic_and_keyed_by_the_new_settings():
     assert [(v.tobytes(), f.tobytes()) for v, f in first] == [(v.tobytes(), f.tobytes()) for v, f in second]
     keys = {coacd_cache_key(mesh, p) for p in (FAST, CoacdParams(preprocess_mode="auto"),
                                                   CoacdParams(slack_p95=2e-3), CoacdParams(near_convex_excess=0.0),
-                                                  CoacdParams(slack_samples=1000), CoacdParams())}
-    assert len(keys) == 6
+                                                  CoacdParams(slack_samples=1000), CoacdParams(free_merge_depth=0.0),
+                                                  CoacdParams())}
+    assert len(keys) == 7
 
 
 @pytest.mark.parametrize("field, value", [("preprocess_mode", "sometimes"), ("slack_p95", 0.0),
-                                          ("near_convex_excess", -0.1), ("slack_samples", 0)])
+                                          ("near_convex_excess", -0.1), ("slack_samples", 0),
+                                          ("free_merge_depth", -1e-3)])
 def test_bad_settings_name_their_field(field, value):
     with pytest.raises(SettingsError, match=field):
         CoacdParams(**{field: value})

@@ -60,3 +60,15 @@ def test_outward_p95_is_hull_slack_p95(count):
     full = hull_slack(mesh, parts, 3000, np.random.default_rng(5))
     assert outward_slack_p95(mesh, parts, 3000, np.random.default_rng(5)) == full.p95
     assert full.p95 > 1e-3  # the parts bridge the L's inner corner: a real value, not 0 == 0
+
+
+@pytest.mark.parametrize("count, batch", [(1, 7), (5, 7), (5, 100_000)])
+def test_outward_p95_settles_sides_lazily_with_the_same_value(monkeypatch, count, batch):
+    # The p95 from winding numbers of the farthest points only equals the p95 of every point's signed distance,
+    # whatever the batch (7: dozens of batches; 100,000: one).
+    monkeypatch.setattr(slack, "_SIGN_BATCH", batch)
+    mesh = l_shape()
+    parts = sliced_parts(mesh, count)
+    points = slack._boundary_samples(slack._Union.of(parts), 3000, np.random.default_rng(2))
+    every = np.percentile(np.maximum(slack._outside_distance(mesh, points), 0.0), 95)
+    assert outward_slack_p95(mesh, parts, 3000, np.random.default_rng(2)) == every
