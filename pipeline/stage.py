@@ -48,6 +48,10 @@ class RunContext:
     """Folder for caches keyed by content (e.g. convex decompositions), kept across ``gen clean``."""
 
 
+ENTRY_BYTES = 300
+"""Memory an :class:`Upstream` view is taken to hold per entry (a compact entry pickles to 150-450 bytes)."""
+
+
 class Upstream:
     """Read access to the committed shards of upstream stages.
 
@@ -70,6 +74,15 @@ class Upstream:
         self.out = Path(out)
         self._entries = {stage: dict(by_id) for stage, by_id in entries.items()}
         self._warnings = {stage: list(w) for stage, w in (warnings or {}).items()}
+
+    def __sizeof__(self) -> int:
+        """Bytes held, estimated as :data:`ENTRY_BYTES` per entry.
+
+        Why: dask's ``sizeof`` reads this, and joblib's dask backend scatters an argument to the cluster once per
+        call (and ships every task a reference to it) only when that says over 1 kB. Python's default counts the
+        bare object (56 bytes), so one stage's view, 0.5-2 MB pickled at 1,000 objects, was pickled into every
+        task and passed through the ``dask scheduler``: ~29 ms of its CPU per task instead of ~0.7 ms."""
+        return object.__sizeof__(self) + ENTRY_BYTES * sum(len(by_id) for by_id in self._entries.values())
 
     def warnings(self, stage: str) -> list[str]:
         """Warnings of ``stage`` in this run (unit guesses, inputs left out, ...); empty when none or not known."""

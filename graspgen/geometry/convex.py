@@ -26,6 +26,7 @@ import coacd
 import numpy as np
 import trimesh
 from scipy.spatial import QhullError
+from threadpoolctl import threadpool_limits
 
 from graspgen.geometry.mesh_io import _check_mesh, _label
 from graspgen.geometry.part_merge import ConvexPart, convex_part, merge_convex_parts
@@ -283,19 +284,23 @@ def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams, closed: bool) -> list
     mode = params.preprocess_mode
     if mode == "unless_watertight":
         mode = "off" if closed else "auto"
-    return coacd.run_coacd(
-        coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
-        threshold=params.threshold,
-        max_convex_hull=-1,
-        merge=False,  # merge_convex_parts merges, at a fraction of the cost of CoACD's all-pairs merge
-        preprocess_mode=mode,
-        preprocess_resolution=params.preprocess_resolution,
-        resolution=params.resolution,
-        mcts_nodes=params.mcts_nodes,
-        mcts_iterations=params.mcts_iterations,
-        mcts_max_depth=params.mcts_depth,
-        seed=params.seed,
-    )
+    # One OpenMP thread: the run's workers are its parallelism (loky already limits each to cores / jobs, an
+    # in-process run, `gen evaluate` and a dask worker did not), and the one crash of CoACD 1.0.14 seen here was an
+    # out-of-bounds read in one of its OpenMP threads (CDT::Triangulation::insertEdgeIteration).
+    with threadpool_limits(limits=1, user_api="openmp"):
+        return coacd.run_coacd(
+            coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
+            threshold=params.threshold,
+            max_convex_hull=-1,
+            merge=False,  # merge_convex_parts merges, at a fraction of the cost of CoACD's all-pairs merge
+            preprocess_mode=mode,
+            preprocess_resolution=params.preprocess_resolution,
+            resolution=params.resolution,
+            mcts_nodes=params.mcts_nodes,
+            mcts_iterations=params.mcts_iterations,
+            mcts_max_depth=params.mcts_depth,
+            seed=params.seed,
+        )
 
 
 def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> ConvexPart | None:

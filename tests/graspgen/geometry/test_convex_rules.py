@@ -93,6 +93,30 @@ def test_closed_mesh_skips_preprocessing_an_open_one_does_not(monkeypatch):
     assert [c["preprocess_mode"] for c in recorder.calls] == ["off", "auto", "on"]
 
 
+def test_coacd_runs_on_one_openmp_thread_and_the_process_keeps_its_own(monkeypatch):
+    """Workers are the run's parallelism; CoACD's own OpenMP threads are held to one while it runs."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+
+    def coacd_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpoolctl.threadpool_info()
+                if i["user_api"] == "openmp" and "coacd" in i["filepath"]]
+
+    before = coacd_threads()
+    assert before, "CoACD's OpenMP runtime is not loaded"
+    seen: list[list[int]] = []
+    hull = l_shape().convex_hull
+    recorder = Recorder([(hull.vertices, hull.faces)])
+
+    def recording(mesh, **kwargs):
+        seen.append(coacd_threads())
+        return recorder(mesh, **kwargs)
+
+    monkeypatch.setattr(coacd, "run_coacd", recording)
+    convex_decomposition(l_shape(), dataclasses.replace(FAST, refine_excess=0.0))
+    assert seen == [[1] * len(before)]
+    assert coacd_threads() == before
+
+
 def test_l_shape_is_decomposed_within_the_slack_criterion():
     mesh = l_shape()
     parts = convex_decomposition(mesh, FAST)
