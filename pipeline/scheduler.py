@@ -195,9 +195,10 @@ class _StageRun:
         (:func:`~pipeline.worker.execute_task`). Cluster workers live on between runs and may hold an older
         ``pipeline.worker``, and an ``Upstream`` is read by every version.
 
-        Why one object for every task: joblib's dask backend scatters each argument over 1 kB to the cluster once
-        per object, so a view per task (a scene's carries the whole object library) was scattered once per task:
-        at 1,000 objects the ``dask scheduler`` process grew to 1.9 GB and each worker to 0.9 GB."""
+        Why one object for every task: joblib's dask backend scatters an argument to the cluster once per call
+        when dask's ``sizeof`` says it is over 1 kB (:meth:`Upstream.__sizeof__`), and otherwise pickles it into
+        every task, through the ``dask scheduler``; the stage's one view is sent once, and a task ships only a
+        reference to it."""
         if own_workers:
             return self.shared.task_view(task.task.needs)
         return self.slim_view
