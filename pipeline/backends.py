@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import warnings
 from collections.abc import Iterator
 from typing import Any
 
@@ -29,6 +31,23 @@ def resolve_jobs(jobs: int) -> int:
         return os.cpu_count() or 1
 
 
+def lost_worker(exc: BaseException, stages: list[str], unfinished: int) -> GenError | None:
+    """The one-line error for ``exc`` when it says one of the run's own worker processes died (loky's
+    ``TerminatedWorkerError``: a crash in native code, the out-of-memory killer, a ``kill -9``) while ``stages``
+    had ``unfinished`` tasks; None for any other exception."""
+    from joblib.externals.loky.process_executor import TerminatedWorkerError
+
+    if not isinstance(exc, TerminatedWorkerError):
+        return None
+    found = re.search(r"exit codes of the workers are \{([^}]*)\}", str(exc))
+    how = f" (exit {found.group(1)})" if found else ""
+    return GenError(
+        f"{', '.join(stages)}: a worker process died{how} while running one of {unfinished} unfinished tasks: a "
+        "crash in native code or the out-of-memory killer. Finished tasks are kept; run the same command again to "
+        "resume"
+    )
+
+
 DASK_CONNECT_TIMEOUT = 10
 """Seconds to wait for ``run.dask_address`` to answer before giving up with a one-line error."""
 
@@ -37,7 +56,11 @@ DASK_CONNECT_TIMEOUT = 10
 def parallel_backend(run: RunConfig, jobs: int) -> Iterator[None]:
     """Set joblib's backend for the run: local processes (loky), a dask.distributed cluster, or ray."""
     if run.backend == "loky":
-        with joblib.parallel_config(backend="loky"):
+        with warnings.catch_warnings(), joblib.parallel_config(backend="loky"):
+            # loky replaces a worker whose memory grew by 300 MB since its first task (its guard against leaks;
+            # a stage that imports torch or holds a large scene does it) and says so with this warning, though no
+            # task is lost. A worker that crashes raises TerminatedWorkerError instead.
+            warnings.filterwarnings("ignore", "A worker stopped while some jobs were given", UserWarning)
             yield
         return
     if run.backend == "dask":

@@ -19,7 +19,7 @@ from typing import Any
 
 import joblib
 
-from pipeline.backends import parallel_backend, resolve_jobs
+from pipeline.backends import lost_worker, parallel_backend, resolve_jobs
 from pipeline.config import RunConfig, to_yaml
 from pipeline.fingerprint import module_cache
 from pipeline.plan import (
@@ -271,13 +271,19 @@ def _run_wave(
             joblib.delayed(execute_task)(r.stage, p, r.params, r.shipped(p, own), stage_dir(out, r.stage.name), ctx)
             for r, p in work
         ]
-        for entry in _finished(calls, min(jobs, len(work))):
-            r = owner[entry.key]
-            _commit(r, entry)
-            notify("task_done", stage=r.stage.name, task=entry.task, ok=entry.status == "ok")
-            left[r.stage.name] -= 1
-            if left[r.stage.name] == 0:
-                _finish_stage(r, out, current, start, notify, warned)
+        try:
+            for entry in _finished(calls, min(jobs, len(work))):
+                r = owner[entry.key]
+                _commit(r, entry)
+                notify("task_done", stage=r.stage.name, task=entry.task, ok=entry.status == "ok")
+                left[r.stage.name] -= 1
+                if left[r.stage.name] == 0:
+                    _finish_stage(r, out, current, start, notify, warned)
+        except Exception as exc:
+            error = lost_worker(exc, [name for name, n in left.items() if n > 0], sum(left.values()))
+            if error is None:
+                raise
+            raise error from None
     return runs
 
 

@@ -4,7 +4,8 @@
 their sum. A task whose id starts with ``bad`` raises, to exercise failure handling. The engine benchmark
 (``python -m bench.bench_engine``) runs the same pipeline at 10k+ tasks (``numbers.count``, ``numbers.work_ms``).
 ``WARN_TOY`` is the same pipeline with stages that warn and a published ``total.txt`` that is checked and repaired
-(the scheduler's and the CLI's warning and publish-status tests).
+(the scheduler's and the CLI's warning and publish-status tests). ``CRASHY`` is one stage whose ``crash`` task ends
+its worker process, as a segfault or the out-of-memory killer would (the scheduler's and the cluster's fault tests).
 """
 
 from __future__ import annotations
@@ -179,3 +180,41 @@ class CheckedSums(SumsStage):
 
 
 WARN_TOY = Project(name="toy", schema=TOY.schema, stages=(CheckedSums(), WarningNumbers()))
+
+
+# A one-stage pipeline with a task that ends its worker process (workers import it from here).
+
+
+@dataclasses.dataclass(frozen=True)
+class CrashParams:
+    ids: tuple[str, ...] = ("a", "b", "crash")
+    """Task ids; ``crash`` ends its process at once, ``slow`` takes a minute."""
+    crash_once: str | None = None
+    """A file path: when given, ``crash`` ends its process only if the file is not there, and makes it."""
+
+
+@dataclasses.dataclass(frozen=True)
+class CrashConfig:
+    run: RunConfig = dataclasses.field(default_factory=RunConfig)
+    numbers: CrashParams = dataclasses.field(default_factory=CrashParams)
+
+
+class CrashStage(Stage):
+    name = "numbers"
+    version = 1
+    ext = "txt"
+
+    def tasks(self, params: CrashParams, upstream) -> list[Task]:
+        return [Task(id=i) for i in params.ids]
+
+    def run(self, task, params, upstream, rng, out: Path, ctx):
+        if task.id == "crash" and not (params.crash_once and os.path.exists(params.crash_once)):
+            if params.crash_once:
+                Path(params.crash_once).touch()
+            os._exit(70)  # no exception, no cleanup: what a segfault or the OOM killer does to the worker
+        if task.id == "slow":
+            time.sleep(60)
+        out.write_text(task.id)
+
+
+CRASHY = Project(name="crashy", schema=CrashConfig, stages=(CrashStage(),))

@@ -15,7 +15,6 @@ is bounded.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import os
 import re
 import signal
@@ -27,11 +26,9 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.config import RunConfig
 from pipeline.keys import sha256_file
-from pipeline.plan import Project, committed
+from pipeline.plan import committed
 from pipeline.repro import shard_hashes
-from pipeline.stage import Stage, Task
 from pipeline.store import MANIFEST, SHARDS
 from tests.paths import REPO
 
@@ -44,42 +41,6 @@ START_TIMEOUT = 30.0
 """Seconds for the scheduler and both workers to register."""
 RUN_TIMEOUT = 120.0
 """Seconds for one `gen run` of the smoke config (5-10 s on 2 idle cores)."""
-
-
-# --------------------------------------------------------------------------------------------------------------
-# A one-stage pipeline with a task that kills its worker process (workers import it from here: tests/ is on
-# PYTHONPATH, see conftest.py)
-
-
-@dataclasses.dataclass(frozen=True)
-class CrashParams:
-    ids: tuple[str, ...] = ("a", "b", "crash")
-    """Task ids; ``crash`` ends its process at once, ``slow`` takes a minute."""
-
-
-@dataclasses.dataclass(frozen=True)
-class CrashConfig:
-    run: RunConfig = dataclasses.field(default_factory=RunConfig)
-    numbers: CrashParams = dataclasses.field(default_factory=CrashParams)
-
-
-class CrashStage(Stage):
-    name = "numbers"
-    version = 1
-    ext = "txt"
-
-    def tasks(self, params: CrashParams, upstream) -> list[Task]:
-        return [Task(id=i) for i in params.ids]
-
-    def run(self, task, params, upstream, rng, out: Path, ctx):
-        if task.id == "crash":
-            os._exit(70)  # no exception, no cleanup: what a segfault or the OOM killer does to the worker
-        if task.id == "slow":
-            time.sleep(60)
-        out.write_text(task.id)
-
-
-CRASHY = Project(name="crashy", schema=CrashConfig, stages=(CrashStage(),))
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -228,7 +189,7 @@ def test_worker_killed_mid_run_gives_the_same_bytes_as_loky(cluster, tmp_path):
 
 
 def crashy_run(out: Path, address: str, *sets: str) -> list[str]:
-    gen = "from tests.pipeline.test_cluster import CRASHY; from pipeline.cli import build_app; build_app(CRASHY)()"
+    gen = "from tests.toy_stages import CRASHY; from pipeline.cli import build_app; build_app(CRASHY)()"
     return [sys.executable, "-c", gen, "run", "--out", str(out), "--jobs", "2", "--backend", "dask", "--set",
             f"run.dask_address={address}", *(a for s in sets for a in ("--set", s))]
 

@@ -10,7 +10,7 @@ import pytest
 
 from pipeline import worker
 from pipeline.config import load_config
-from pipeline.errors import LockError, StageError
+from pipeline.errors import GenError, LockError, StageError
 from pipeline.keys import sha256_file
 from pipeline.repro import shard_hashes
 from pipeline.scheduler import run_pipeline
@@ -18,7 +18,7 @@ from pipeline.stage import Task, topological_order
 from pipeline.status import status
 from pipeline.store import Manifest, RunLock, stage_dir
 from pipeline.worker import DiskFullError, return_freed_memory
-from tests.toy_stages import TOY, WARN_TOY, CheckedSums, read_json, write_json
+from tests.toy_stages import CRASHY, TOY, WARN_TOY, CheckedSums, CrashConfig, read_json, write_json
 
 
 def config(out, *sets):
@@ -122,6 +122,20 @@ def test_failed_task_is_recorded_and_the_rest_goes_on(tmp_path):
     assert (retried["numbers"].ran, retried["numbers"].failed) == (0, 1)
     st = {s.stage: s for s in status(TOY, cfg)}
     assert st["numbers"].state == "failed" and st["numbers"].failed == 1
+
+
+def test_a_worker_process_that_dies_stops_the_run_in_one_line_and_the_rest_resumes(tmp_path):
+    """A task that ends its loky worker (as a segfault or the OOM killer would): one line naming the stage, the
+    finished tasks committed, and the same run without that task does only the rest."""
+    out = tmp_path / "o"
+    sets = [f"run.out={out}", "run.jobs=2", "numbers.ids=[a, b, c, d, crash]", f"numbers.crash_once={tmp_path / 'x'}"]
+    cfg = load_config(CrashConfig, None, sets)
+    with pytest.raises(GenError, match=r"^numbers: a worker process died \(exit .*70.*\) while running one of \d "
+                                       r"unfinished tasks: .* run the same command again to resume$"):
+        run_pipeline(CRASHY, cfg)
+    finished = len(Manifest(stage_dir(out, "numbers")).entries(compact=True))
+    again = by_stage(run_pipeline(CRASHY, cfg))
+    assert (again["numbers"].ran, again["numbers"].skipped, again["numbers"].failed) == (5 - finished, finished, 0)
 
 
 def test_shard_without_manifest_entry_does_not_exist(tmp_path):
