@@ -13,6 +13,7 @@ Per protocol, pooled over files: the success-label agreement and Cohen's kappa o
 (the same confusion counts as ``bench_warp``), outcome-code changes, per category; beside them the warp backend's
 agreement on the same grasps as that run recorded it. A label that flips when the solver stops at 1e-6 instead of
 1e-8 is not decided by the physics to better than that: those grasps bound what a float32 engine can agree on.
+(``studies/label_stability.py`` asks the other question: do the pipeline's labels survive a finer timestep.)
 
 Run: ``python -m bench.bench_label_stability [--protocols acronym] [--limit N] [--out FILE]``; the JSON is rewritten
 after every file and ``--resume`` adds to it.

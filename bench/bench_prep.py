@@ -13,7 +13,8 @@ knives, bottles, hats, scissors; README there), its mesh is prepared by
 Each preparation runs in a fresh child process (``OMP_NUM_THREADS=1``: one core) with no CoACD cache (it measures
 the decomposition, not a cache hit), under a CPU-time cap (``RLIMIT_CPU``; a wall cap, by default 20x, as a
 backstop): a mesh over either is reported as ``>`` the CPU seconds it had used when stopped. Reported per mesh: CPU
-seconds (``time.process_time`` of the child), wall seconds, the seconds of each step (load+repair+units+mass,
+seconds (of the child and of the CoACD processes it waited for, :func:`pipeline.worker.task_cpu_seconds`), wall
+seconds, the seconds of each step (load+repair+units+mass,
 decomposition, stable poses), the parts, the way the decomposition was made and the parts' hull slack (p95 and max
 mm, :func:`graspgen.geometry.convex.hull_slack`, 20,000 samples, measured after the clock stopped) and the sha256 of
 the parts' bytes; then median, p90 and worst CPU seconds, overall and per category, and the worst slack p95.
@@ -86,17 +87,18 @@ def prepare_kwargs(mode: str) -> dict:
 def child(mesh: str, scale: float, mode: str, profile: str | None) -> dict:
     """Prepare one mesh in this process and time it (and its steps)."""
     import graspgen.geometry.prepare as prepare
+    from pipeline.worker import task_cpu_seconds
 
     steps = {"decomposition": 0.0, "stable_poses": 0.0}
     ways: list[str] = []
 
     def timed(name, fn):
         def run(*a, **k):
-            start = time.process_time()
+            start = task_cpu_seconds()
             try:
                 return fn(*a, **k)
             finally:
-                steps[name] += time.process_time() - start
+                steps[name] += task_cpu_seconds() - start
         return run
 
     prepare.cached_convex_decomposition = timed("decomposition", prepare.cached_convex_decomposition)
@@ -116,10 +118,10 @@ def child(mesh: str, scale: float, mode: str, profile: str | None) -> dict:
 
         profiler = cProfile.Profile()
         profiler.enable()
-    cpu, wall = time.process_time(), time.perf_counter()
+    cpu, wall = task_cpu_seconds(), time.perf_counter()
     prepared = prepare.prepare_object(mesh, scale=scale, rng=np.random.default_rng(0), coacd_cache_dir=None,
                                       **kwargs)
-    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    cpu, wall = task_cpu_seconds() - cpu, time.perf_counter() - wall
     if profiler is not None:
         profiler.disable()
         profiler.dump_stats(profile)

@@ -22,12 +22,12 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
-import coacd
 import numpy as np
 import trimesh
 from scipy.spatial import QhullError
-from threadpoolctl import threadpool_limits
 
+from graspgen.errors import InputError
+from graspgen.geometry import coacd_process
 from graspgen.geometry.mesh_io import _check_mesh, _label
 from graspgen.geometry.part_merge import ConvexPart, convex_part, merge_convex_parts
 from graspgen.geometry.slack import HullSlack, hull_slack, outward_slack_p95
@@ -279,17 +279,12 @@ def _is_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh) -> bool:
 
 
 def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams, closed: bool) -> list:
-    # CoACD logs every iteration to stdout by default, which would drown the pipeline's own output.
-    coacd.set_log_level("error")
     mode = params.preprocess_mode
     if mode == "unless_watertight":
         mode = "off" if closed else "auto"
-    # One OpenMP thread: the run's workers are its parallelism (loky already limits each to cores / jobs, an
-    # in-process run, `gen evaluate` and a dask worker did not), and the one crash of CoACD 1.0.14 seen here was an
-    # out-of-bounds read in one of its OpenMP threads (CDT::Triangulation::insertEdgeIteration).
-    with threadpool_limits(limits=1, user_api="openmp"):
-        return coacd.run_coacd(
-            coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
+    try:
+        return coacd_process.run_coacd(
+            np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32),
             threshold=params.threshold,
             max_convex_hull=-1,
             merge=False,  # merge_convex_parts merges, at a fraction of the cost of CoACD's all-pairs merge
@@ -301,6 +296,8 @@ def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams, closed: bool) -> list
             mcts_max_depth=params.mcts_depth,
             seed=params.seed,
         )
+    except InputError as exc:
+        raise type(exc)(f"{_label(mesh)}: {exc}") from None
 
 
 def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> ConvexPart | None:

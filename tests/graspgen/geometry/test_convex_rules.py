@@ -7,12 +7,13 @@ from __future__ import annotations
 
 import dataclasses
 
-import coacd
 import numpy as np
 import pytest
 import trimesh
 
 from graspgen.errors import SettingsError
+from graspgen.geometry import coacd_process
+from graspgen.geometry.coacd_process import CoacdCrash
 from graspgen.geometry.convex import CoacdParams, coacd_cache_key, convex_decomposition, hull_slack
 from graspgen.geometry.repair import repair_mesh
 from tests.shapes import l_shape
@@ -37,18 +38,19 @@ def notched_box(depth: float) -> trimesh.Trimesh:
 
 
 class Recorder:
-    """Stands in for ``coacd.run_coacd``: records each call's keyword arguments and returns given parts."""
+    """Stands in for :func:`graspgen.geometry.coacd_process.run_coacd`: records each call's keyword arguments and
+    returns given parts."""
 
     def __init__(self, parts):
         self.parts, self.calls = parts, []
 
-    def __call__(self, mesh, **kwargs):
+    def __call__(self, vertices, faces, **kwargs):
         self.calls.append(kwargs)
         return [[np.asarray(v), np.asarray(f)] for v, f in self.parts]
 
 
 def test_convex_box_skips_coacd_and_is_its_hull(monkeypatch):
-    monkeypatch.setattr(coacd, "run_coacd", _fail)
+    monkeypatch.setattr(coacd_process, "run_coacd", _fail)
     box = trimesh.creation.box((0.05, 0.07, 0.12))
     (part,) = convex_decomposition(box, FAST)
     hull = box.convex_hull
@@ -57,7 +59,7 @@ def test_convex_box_skips_coacd_and_is_its_hull(monkeypatch):
 
 
 def test_shallow_notch_is_near_convex_its_hull_alone(monkeypatch):
-    monkeypatch.setattr(coacd, "run_coacd", _fail)
+    monkeypatch.setattr(coacd_process, "run_coacd", _fail)
     mesh = notched_box(0.0005)  # 0.5 mm deep: the hull bridges it by 0.5 mm at most, under the 1 mm criterion
     assert mesh.convex_hull.volume > mesh.volume * (1 + 1e-6)  # not convex in the exact sense
     (part,) = convex_decomposition(mesh, FAST)
@@ -69,7 +71,7 @@ def test_deep_notch_or_no_near_convex_rule_goes_to_coacd(monkeypatch):
     deep = notched_box(0.004)  # 4 mm: the hull's slack over the notch (> 5 % of its area) is over 1 mm
     hull = deep.convex_hull
     recorder = Recorder([(hull.vertices, hull.faces)])
-    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    monkeypatch.setattr(coacd_process, "run_coacd", recorder)
     assert hull.volume <= 1.05 * deep.volume  # within the volume gate: the slack decides
     once = dataclasses.replace(FAST, refine_excess=0.0)  # the hull given back would be refined: one call each
     convex_decomposition(deep, once)
@@ -82,7 +84,7 @@ def test_closed_mesh_skips_preprocessing_an_open_one_does_not(monkeypatch):
     mesh = l_shape()
     hull = mesh.convex_hull
     recorder = Recorder([(hull.vertices, hull.faces)])
-    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    monkeypatch.setattr(coacd_process, "run_coacd", recorder)
     once = dataclasses.replace(FAST, refine_excess=0.0)  # the hull given back would be refined: one call each
     convex_decomposition(mesh, once)
     open_mesh = mesh.copy()
@@ -93,28 +95,15 @@ def test_closed_mesh_skips_preprocessing_an_open_one_does_not(monkeypatch):
     assert [c["preprocess_mode"] for c in recorder.calls] == ["off", "auto", "on"]
 
 
-def test_coacd_runs_on_one_openmp_thread_and_the_process_keeps_its_own(monkeypatch):
-    """Workers are the run's parallelism; CoACD's own OpenMP threads are held to one while it runs."""
-    threadpoolctl = pytest.importorskip("threadpoolctl")
+def test_a_crash_in_coacd_names_the_mesh(monkeypatch):
+    def crashing(vertices, faces, **kwargs):
+        raise CoacdCrash("CoACD crashed (SIGSEGV) while decomposing it")
 
-    def coacd_threads() -> list[int]:
-        return [i["num_threads"] for i in threadpoolctl.threadpool_info()
-                if i["user_api"] == "openmp" and "coacd" in i["filepath"]]
-
-    before = coacd_threads()
-    assert before, "CoACD's OpenMP runtime is not loaded"
-    seen: list[list[int]] = []
-    hull = l_shape().convex_hull
-    recorder = Recorder([(hull.vertices, hull.faces)])
-
-    def recording(mesh, **kwargs):
-        seen.append(coacd_threads())
-        return recorder(mesh, **kwargs)
-
-    monkeypatch.setattr(coacd, "run_coacd", recording)
-    convex_decomposition(l_shape(), dataclasses.replace(FAST, refine_excess=0.0))
-    assert seen == [[1] * len(before)]
-    assert coacd_threads() == before
+    monkeypatch.setattr(coacd_process, "run_coacd", crashing)
+    mesh = l_shape()
+    mesh.metadata["file_name"] = "bowl_fca9.obj"
+    with pytest.raises(CoacdCrash, match=r"^bowl_fca9.obj: CoACD crashed \(SIGSEGV\) while decomposing it$"):
+        convex_decomposition(mesh, FAST)
 
 
 def test_l_shape_is_decomposed_within_the_slack_criterion():
@@ -135,7 +124,7 @@ def test_cavity_filled_but_not_reachable_is_not_refined(monkeypatch):
     assert shell.is_watertight and shell.volume > 0
     hull = outer.convex_hull
     recorder = Recorder([(hull.vertices, hull.faces)])
-    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    monkeypatch.setattr(coacd_process, "run_coacd", recorder)
     (part,) = convex_decomposition(shell, FAST)
     assert hull.volume / shell.volume - 1 > FAST.refine_excess
     assert len(recorder.calls) == 1
@@ -169,7 +158,7 @@ def test_cavity_bridged_from_outside_is_refined_by_a_cut_the_cap_can_keep(monkey
     # only merged again (a finer cut would make more pieces than the cap keeps). CoACD never merges itself.
     cup = _cup()
     recorder = Recorder(_slabs(cup, pieces))
-    monkeypatch.setattr(coacd, "run_coacd", recorder)
+    monkeypatch.setattr(coacd_process, "run_coacd", recorder)
     convex_decomposition(cup, FAST)
     assert [FAST.threshold / c["threshold"] for c in recorder.calls] == pytest.approx(thresholds)
     assert all(c["merge"] is False and c["max_convex_hull"] == -1 for c in recorder.calls)

@@ -6,12 +6,12 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import coacd
 import numpy as np
 import pytest
 import trimesh
 
 from graspgen.errors import InputError
+from graspgen.geometry import coacd_process
 from graspgen.geometry.convex import CoacdParams, _convex_part, _read_parts, convex_decomposition, write_parts
 from graspgen.geometry.mass import _physical_inertia, mass_properties
 from graspgen.geometry.mesh_io import load_mesh
@@ -321,7 +321,7 @@ def test_physical_inertia_fixes_rounding_on_the_triangle_inequality():
 
 
 def test_convex_decomposition_of_box_is_the_box(monkeypatch):
-    monkeypatch.setattr(coacd, "run_coacd", _fail)  # a convex mesh must not go through CoACD
+    monkeypatch.setattr(coacd_process, "run_coacd", _fail)  # a convex mesh must not go through CoACD
     box = trimesh.creation.box((0.1, 0.06, 0.03))
     parts = convex_decomposition(box, FAST_COACD)
     assert len(parts) == 1
@@ -582,7 +582,7 @@ def test_prepare_object_end_to_end_with_cache(tmp_path, monkeypatch):
     assert len(list(cache.glob("*.npz"))) == 1
     assert not list(cache.glob("*.tmp"))
 
-    monkeypatch.setattr(coacd, "run_coacd", _fail)
+    monkeypatch.setattr(coacd_process, "run_coacd", _fail)
     second = prepare_object(
         path, density=DENSITY, coacd=FAST_COACD, poses=POSES, rng=np.random.default_rng(1), coacd_cache_dir=cache
     )
