@@ -14,6 +14,8 @@ import dataclasses
 import errno
 import json
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -188,7 +190,8 @@ WARN_TOY = Project(name="toy", schema=TOY.schema, stages=(CheckedSums(), Warning
 @dataclasses.dataclass(frozen=True)
 class CrashParams:
     ids: tuple[str, ...] = ("a", "b", "crash")
-    """Task ids; ``crash`` ends its process at once, ``slow`` takes a minute."""
+    """Task ids; ``crash`` ends its process at once, ``slow`` takes a minute, ``child`` spends 0.3 s of CPU in a
+    child process."""
     crash_once: str | None = None
     """A file path: when given, ``crash`` ends its process only if the file is not there, and makes it."""
 
@@ -214,6 +217,9 @@ class CrashStage(Stage):
             os._exit(70)  # no exception, no cleanup: what a segfault or the OOM killer does to the worker
         if task.id == "slow":
             time.sleep(60)
+        if task.id == "child":  # 0.3 s of CPU in a child process it waits for
+            busy = "import time\nstart = time.process_time()\nwhile time.process_time() - start < 0.3: pass"
+            subprocess.run([sys.executable, "-c", busy], check=True)
         out.write_text(task.id)
 
 

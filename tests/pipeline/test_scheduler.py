@@ -138,6 +138,14 @@ def test_a_worker_process_that_dies_stops_the_run_in_one_line_and_the_rest_resum
     assert (again["numbers"].ran, again["numbers"].skipped, again["numbers"].failed) == (5 - finished, finished, 0)
 
 
+def test_a_task_s_cpu_seconds_count_the_child_processes_it_waited_for(tmp_path):
+    """The objects stage runs CoACD in a child process; its CPU is the task's."""
+    out = tmp_path / "o"
+    run_pipeline(CRASHY, load_config(CrashConfig, None, [f"run.out={out}", "run.jobs=1", "numbers.ids=[child, a]"]))
+    cpu = {e.task: e.cpu_seconds for e in Manifest(stage_dir(out, "numbers")).entries().values()}
+    assert cpu["child"] >= 0.3 > cpu["a"]
+
+
 def test_shard_without_manifest_entry_does_not_exist(tmp_path):
     out = tmp_path / "o"
     cfg = config(out, "run.jobs=1")
