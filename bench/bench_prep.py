@@ -20,9 +20,15 @@ mm, :func:`graspgen.geometry.convex.hull_slack`, 20,000 samples, measured after 
 the parts' bytes; then median, p90 and worst CPU seconds, overall and per category, and the worst slack p95.
 ``--profile`` writes a cProfile of each child (``<out>.prof/<file>.prof``). Run one at a time, ``nice -n 5``.
 
+``--baseline DIR`` runs every mesh also with the code of another tree (``DIR``, e.g. ``git archive`` of the commit
+before a change), the two children one after the other (which goes first alternates), so that both see the same
+machine: the summary then has the baseline's figures too, and the ratio of the two (per mesh: the median of the CPU
+seconds' ratios; overall: of the medians). CPU seconds on a shared machine drift by 10-15 % between runs made hours
+apart, more than a change of a few percent; run side by side, they move together.
+
 Run: ``python -m bench.bench_prep [--mode pipeline,evaluate] [--distinct] [--per-category N] [--cap 300]
-[--only mug,bowl] [--out FILE]``; ``--distinct`` takes one file per mesh (the set holds some meshes at several
-scales), ``--per-category N`` the first N files of each category (a quick run). Writes JSON
+[--only mug,bowl] [--baseline DIR] [--out FILE]``; ``--distinct`` takes one file per mesh (the set holds some
+meshes at several scales), ``--per-category N`` the first N files of each category (a quick run). Writes JSON
 (default ``bench/results_bench_prep.json``), merged with what it holds so a run can be resumed.
 """
 
@@ -149,9 +155,10 @@ def _slack(prepared) -> dict:
             "parts_sha256": digest.hexdigest()}
 
 
-def run_one(entry: dict, mode: str, cap: float, wall_cap: float, profile: str | None) -> dict:
-    """Run :func:`child` in a fresh process under the CPU cap (and the wall cap); ``cpu_s`` None when capped, with
-    the CPU seconds the child had used when stopped in ``cpu_used_s`` (its rusage, once reaped)."""
+def run_one(entry: dict, mode: str, cap: float, wall_cap: float, profile: str | None, root: Path = ROOT) -> dict:
+    """Run :func:`child` in a fresh process under the CPU cap (and the wall cap), with the code of the tree ``root``;
+    ``cpu_s`` None when capped, with the CPU seconds the child had used when stopped in ``cpu_used_s`` (its rusage,
+    once reaped)."""
     def limit():
         resource.setrlimit(resource.RLIMIT_CPU, (int(cap), int(cap) + 5))
 
@@ -159,7 +166,8 @@ def run_one(entry: dict, mode: str, cap: float, wall_cap: float, profile: str | 
            json.dumps([entry["mesh"], entry["scale"], mode, profile])]
     start, used = time.perf_counter(), _children_cpu()
     try:
-        done = subprocess.run(cmd, capture_output=True, text=True, timeout=wall_cap, preexec_fn=limit, cwd=ROOT)
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=wall_cap, preexec_fn=limit, cwd=root,
+                              env={**os.environ, "PYTHONPATH": str(root)})
     except subprocess.TimeoutExpired:  # subprocess.run has killed and reaped it: its rusage is counted
         return {**entry, "mode": mode, "cpu_s": None, "cpu_used_s": _children_cpu() - used,
                 "wall_s": time.perf_counter() - start, "capped": "wall"}
@@ -191,6 +199,36 @@ def summary(rows: list[dict], cap: float) -> dict:
     return out
 
 
+def _ratio(rows: dict, base: dict, mode: str, chosen: set) -> dict:
+    """This tree's CPU seconds against the baseline's, on the meshes both ran uncapped."""
+    pairs = [(rows[k]["cpu_s"], base[k]["cpu_s"]) for k in rows
+             if k[1] == mode and k[0] in chosen and k in base and rows[k]["cpu_s"] and base[k]["cpu_s"]]
+    new, old = np.array(pairs).T if pairs else (np.zeros(0), np.zeros(0))
+    return {"n": len(pairs), "median_per_mesh": float(np.median(new / old)) if pairs else float("nan"),
+            "of_medians": float(np.median(new) / np.median(old)) if pairs else float("nan"),
+            "of_totals": float(new.sum() / old.sum()) if pairs else float("nan")}
+
+
+def _print_row(tag: str, entry: dict, row: dict) -> None:
+    shown = f">{row['cpu_used_s']:.0f}" if row["cpu_s"] is None else f"{row['cpu_s']:.1f}"
+    steps = row.get("steps_s", {})
+    print(f"{tag:>17} {entry['file'][:48]:48} cpu {shown:>6} s  wall {row['wall_s']:6.1f} s  "
+          f"decomp {steps.get('decomposition', 0):6.1f}  poses {steps.get('stable_poses', 0):5.1f}  "
+          f"parts {row.get('parts', '-')}  slack p95 {row.get('slack_p95_mm', float('nan')):.2f} mm  "
+          f"{row.get('error') or ''}", flush=True)
+
+
+def _print_summary(title: str, stats: dict, cap: float) -> None:
+    print(f"\n{title}: CPU s per mesh (capped at {cap:.0f} s; a capped mesh counts as the cap)")
+    print("| category | n | median | p90 | worst | capped | worst slack p95 mm | p95 > 1 mm |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for cat, s in stats.items():
+        print(f"| {cat} | {s['n']} | {s['median_s']:.1f} | {s['p90_s']:.1f} | "
+              f"{'>' if s['capped'] else ''}{s['worst_s']:.1f} | {s['capped']} | "
+              f"{'-' if s['worst_slack_p95_mm'] is None else format(s['worst_slack_p95_mm'], '.2f')} | "
+              f"{s['over_1mm']} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", default=",".join(MODES), help="comma-separated of: pipeline, evaluate")
@@ -202,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--learn", type=Path, default=LEARN)
     ap.add_argument("--profile", action="store_true", help="cProfile each preparation to <out>.prof/")
     ap.add_argument("--label", default="", help="a name for this run stored in the results (e.g. before, after)")
+    ap.add_argument("--baseline", type=Path, default=None, help="another tree to run each mesh with, side by side")
     ap.add_argument("--out", type=Path, default=RESULTS)
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -217,40 +256,45 @@ def main(argv: list[str] | None = None) -> int:
                if not words or any(w in e["file"] for w in words)]
     report = json.loads(args.out.read_text()) if args.out.is_file() else {"rows": []}
     known = {(r["file"], r["mode"]): r for r in report["rows"]}
+    base = {(r["file"], r["mode"]): r for r in report.get("baseline_rows", [])}
     prof_dir = Path(str(args.out) + ".prof")
     for mode in modes:
-        for entry in entries:
-            if (entry["file"], mode) in known:
+        for i, entry in enumerate(entries):
+            key = (entry["file"], mode)
+            if key in known and (args.baseline is None or key in base):
                 continue
             profile = None
             if args.profile:
                 prof_dir.mkdir(parents=True, exist_ok=True)
                 profile = str(prof_dir / f"{mode}-{entry['file']}.prof")
-            row = run_one(entry, mode, args.cap, args.wall_cap or 20 * args.cap, profile)
-            known[(entry["file"], mode)] = row
-            shown = f">{row['cpu_used_s']:.0f}" if row["cpu_s"] is None else f"{row['cpu_s']:.1f}"
-            steps = row.get("steps_s", {})
-            print(f"{mode:>8} {entry['file'][:48]:48} cpu {shown:>6} s  wall {row['wall_s']:6.1f} s  "
-                  f"decomp {steps.get('decomposition', 0):6.1f}  poses {steps.get('stable_poses', 0):5.1f}  "
-                  f"parts {row.get('parts', '-')}  slack p95 {row.get('slack_p95_mm', float('nan')):.2f} mm  "
-                  f"{row.get('error') or ''}", flush=True)
+            runs = [("", ROOT, known)] + ([("baseline ", args.baseline.resolve(), base)] if args.baseline else [])
+            for tag, root, rows in runs if i % 2 else runs[::-1]:
+                row = run_one(entry, mode, args.cap, args.wall_cap or 20 * args.cap, profile, root)
+                rows[key] = row
+                _print_row(tag + mode, entry, row)
             report["rows"] = sorted(known.values(), key=lambda r: (r["mode"], r["file"]))
+            if args.baseline is not None:
+                report["baseline"] = str(args.baseline)
+                report["baseline_rows"] = sorted(base.values(), key=lambda r: (r["mode"], r["file"]))
             args.out.write_text(json.dumps(report, indent=1))
     report["cap_s"] = args.cap
     report["label"] = args.label
     chosen = {e["file"] for e in entries}
     report["summary"] = {m: summary([r for r in report["rows"] if r["mode"] == m and r["file"] in chosen], args.cap)
                          for m in modes}
+    if args.baseline is not None:
+        report["baseline_summary"] = {m: summary([r for r in report["baseline_rows"]
+                                                  if r["mode"] == m and r["file"] in chosen], args.cap)
+                                      for m in modes}
+        report["ratio"] = {m: _ratio(known, base, m, chosen) for m in modes}
     args.out.write_text(json.dumps(report, indent=1))
     for mode in modes:
-        print(f"\n{mode}: CPU s per mesh (capped at {args.cap:.0f} s; a capped mesh counts as the cap)")
-        print("| category | n | median | p90 | worst | capped | worst slack p95 mm | p95 > 1 mm |")
-        print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
-        for cat, s in report["summary"][mode].items():
-            print(f"| {cat} | {s['n']} | {s['median_s']:.1f} | {s['p90_s']:.1f} | "
-                  f"{'>' if s['capped'] else ''}{s['worst_s']:.1f} | {s['capped']} | "
-                  f"{'-' if s['worst_slack_p95_mm'] is None else format(s['worst_slack_p95_mm'], '.2f')} | "
-                  f"{s['over_1mm']} |")
+        _print_summary(mode, report["summary"][mode], args.cap)
+        if args.baseline is not None:
+            _print_summary(f"{mode}, baseline {args.baseline}", report["baseline_summary"][mode], args.cap)
+            r = report["ratio"][mode]
+            print(f"{mode}: this tree / baseline, CPU s: median per mesh {r['median_per_mesh']:.3f}, "
+                  f"of the medians {r['of_medians']:.3f}, of the totals {r['of_totals']:.3f} ({r['n']} meshes)")
     return 0
 
 

@@ -1,16 +1,24 @@
-"""An experiment, not the pipeline's rule: refine only the rough pieces of CoACD's first cut (issue 24's note).
+"""The refinement's two ways on ../shared/learn's meshes: the rough pieces of CoACD's first cut cut again alone, or
+the whole mesh cut again (issue 24's note).
 
 :func:`graspgen.geometry.convex.convex_decomposition` refines parts that stand more than ``slack_p95`` out of the
-surface by cutting the whole mesh again at a finer threshold. Here, for each mesh that rule refines, the same first
-cut's pieces are also sorted into rough (over 5 % of a piece's area more than ``slack_p95`` outside the mesh: 4,000
-area samples over all pieces, distance to the surface, then winding numbers for the far ones) and smooth; each rough
-piece is cut again alone, on the mesh inside its hull (a manifold3d intersection), at the threshold that gives the
-whole-mesh finer cut's absolute concavity (CoACD's threshold is relative to half the largest extent); the smooth
-pieces are kept; all are merged to four times ``max_convex_hull`` as the rule does. Both are timed (CPU s of this
-process and the CoACD children) and their hull slack (p95) measured.
+surface. For each mesh it refines, this study runs, on the same first cut (CoACD's pieces before merging):
 
-Run: ``python -m studies.rough_piece_refine --mode evaluate --categories mug,bowl --per-category 6 [--out FILE]``.
-``--mode`` is bench_prep's (``pipeline``: the objects stage's settings; ``evaluate``: ``gen evaluate``'s).
+* ``rough``: each rough piece (over 5 % of its area more than ``slack_p95`` outside the mesh,
+  :func:`graspgen.geometry.slack.rough_parts`) cut again alone, on the mesh inside its hull, at the concavity
+  of a whole-mesh cut at a quarter of the threshold; the other pieces kept
+  (:func:`graspgen.geometry.convex._rough_pieces_recut`);
+* ``whole``: the whole mesh cut again, at a quarter of the threshold where the first cut made at most twice
+  ``max_convex_hull`` pieces, else at half;
+
+each merged to four times ``max_convex_hull``, and records their CPU seconds (this process and the CoACD children),
+the pieces they made and their hull slack (p95, mm), with the first cut's CPU seconds, its pieces, how many are rough
+and the rough pieces' share of the pieces' area. Meshes whose first cut made more than four times ``max_convex_hull``
+pieces are only merged again by the rule and are recorded without the two.
+
+Run: ``python -m studies.rough_piece_refine --mode pipeline|evaluate [--categories mug,bowl] [--per-category N]
+[--every K --offset I] [--out FILE]``. ``--mode`` is bench_prep's (``pipeline``: the objects stage's settings;
+``evaluate``: ``gen evaluate``'s).
 """
 
 from __future__ import annotations
@@ -21,85 +29,79 @@ import json
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 import graspgen.geometry.convex as convex
 import graspgen.geometry.prepare as prepare
 from bench.bench_prep import LEARN, files, prepare_kwargs
-from graspgen.geometry.coacd_process import CoacdCrash
-from graspgen.geometry.slack import _area_samples, _surface_distance, _winding_number
+from graspgen.geometry.slack import rough_parts
 from pipeline.worker import task_cpu_seconds
 
-ROUGH_SHARE = 0.05
-"""A piece is rough when more than this share of its area samples stand over ``slack_p95`` outside the mesh."""
+
+def _area(piece) -> float:
+    t = piece.vertices[piece.faces]
+    return float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
 
 
-def rough_pieces(mesh: trimesh.Trimesh, pieces: list, slack: float, rng: np.random.Generator) -> np.ndarray:
-    """``(n,) bool``: which pieces are rough."""
-    triangles = np.concatenate([p.vertices[p.faces] for p in pieces])
-    owner = np.concatenate([np.full(len(p.faces), i) for i, p in enumerate(pieces)])
-    points, which = _area_samples(triangles, 4000, rng)
-    owner = owner[which]
-    far = np.flatnonzero(_surface_distance(mesh, points) > slack)
-    outside = np.zeros(len(points), dtype=bool)
-    if len(far):
-        outside[far] = np.abs(_winding_number(mesh, points[far])) <= 0.5
-    return np.array([outside[owner == i].mean() > ROUGH_SHARE if np.any(owner == i) else False
-                     for i in range(len(pieces))])
+def _timed(record: dict, name: str, make):
+    start = task_cpu_seconds()
+    out = make()
+    record[f"{name}_s"] = task_cpu_seconds() - start
+    return out
 
 
-def refine_rough(mesh: trimesh.Trimesh, pieces: list, params: convex.CoacdParams) -> tuple[list, dict]:
-    """The rough pieces cut again alone, the smooth ones kept, all merged to four times the cap."""
-    rough = rough_pieces(mesh, pieces, params.slack_p95, np.random.default_rng(params.seed))
-    half = float(np.max(np.ptp(mesh.vertices, axis=0))) / 2
-    kept = [p for p, r in zip(pieces, rough) if not r]
-    crashed = 0
-    for piece in (p for p, r in zip(pieces, rough) if r):
-        inside = trimesh.boolean.intersection([mesh, trimesh.Trimesh(piece.vertices, piece.faces, process=False)],
-                                              engine="manifold")
-        if inside.is_empty or inside.volume <= 0:
-            continue
-        threshold = min(1.0, params.threshold / 4 * half / (float(np.max(np.ptp(inside.vertices, axis=0))) / 2))
-        try:
-            cut = convex._coacd_pieces(inside, inside.convex_hull, dataclasses.replace(params, threshold=threshold),
-                                       True)
-        except CoacdCrash:
-            crashed, cut = crashed + 1, []
-        kept += cut or [piece]
-    return convex._merged(kept, 4 * params.max_convex_hull, params), {"rough": int(rough.sum()), "crashed": crashed}
+def both_ways(mesh, hull, closed, pieces, params) -> dict:
+    """The two refinements of one first cut ``pieces`` (see the module's docstring), as a record."""
+    cap = 4 * params.max_convex_hull
+    record: dict = {"pieces": len(pieces)}
+    rough = _timed(record, "classify", lambda: rough_parts(
+        mesh, [convex._part_arrays(p) for p in pieces], params.slack_p95, convex._ROUGH_SHARE, params.slack_samples,
+        np.random.default_rng(params.seed)))
+    areas = np.array([_area(p) for p in pieces])
+    record.update(rough=int(rough.sum()), rough_area_share=float(areas[rough].sum() / areas.sum()))
+    if rough.any():
+        cut = _timed(record, "rough", lambda: convex._rough_pieces_recut(mesh, pieces, rough, params))
+        parts = convex._merged(cut, cap, params)
+        record.update(rough_pieces=len(cut), rough_slack_mm=1e3 * convex._slack_p95(mesh, parts, params))
+    divisor = 4 if len(pieces) <= convex._QUARTER_CUT_PIECES * params.max_convex_hull else 2
+    finer = dataclasses.replace(params, threshold=params.threshold / divisor)
+    cut = _timed(record, "whole", lambda: convex._coacd_pieces(mesh, hull, finer, closed))
+    parts = convex._merged(cut, cap, params)
+    record.update(divisor=divisor, whole_pieces=len(cut), whole_slack_mm=1e3 * convex._slack_p95(mesh, parts, params))
+    return record
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mode", choices=("pipeline", "evaluate"), default="evaluate")
-    ap.add_argument("--categories", default="mug,bowl,knife,bottle,hat")
-    ap.add_argument("--per-category", type=int, default=6)
+    ap.add_argument("--categories", default="")
+    ap.add_argument("--per-category", type=int, default=0)
+    ap.add_argument("--every", type=int, default=1, help="take every K-th mesh (with --offset: split a run)")
+    ap.add_argument("--offset", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("studies/results_rough_piece_refine.json"))
     args = ap.parse_args()
     rows: list[dict] = []
     record: dict = {}
-    rule = convex._refined
+    first_cut = convex._coacd_pieces
 
-    def both(mesh, hull, closed, pieces, first, params):
-        start = task_cpu_seconds()
-        parts, info = refine_rough(mesh, pieces, params)
-        record.update(rough_s=task_cpu_seconds() - start, rough_slack_mm=1e3 * convex._slack_p95(mesh, parts, params),
-                      rough_parts=len(parts), pieces=len(pieces), **info)
-        start = task_cpu_seconds()
-        chosen = rule(mesh, hull, closed, pieces, first, params)
-        record.update(rule_s=task_cpu_seconds() - start, rule_slack_mm=1e3 * convex._slack_p95(mesh, chosen, params),
-                      rule_parts=len(chosen))
-        return chosen
+    def timed_first(mesh, hull, params, closed):
+        if "first_s" in record:
+            return first_cut(mesh, hull, params, closed)
+        return _timed(record, "first", lambda: first_cut(mesh, hull, params, closed))
 
-    convex._refined = both
-    wanted = args.categories.split(",")
-    for entry in files(LEARN, distinct=True):
-        taken = sum(r["category"] == entry["category"] for r in rows)
-        if entry["category"] not in wanted or taken >= args.per_category:
+    def study(mesh, hull, closed, pieces, first, params):
+        if len(pieces) <= convex._HALF_CUT_PIECES * params.max_convex_hull:
+            record.update(both_ways(mesh, hull, closed, pieces, params), first_slack_mm=1e3 * first[1])
+        return first[0]
+
+    convex._coacd_pieces, convex._refined = timed_first, study
+    wanted = set(args.categories.split(",")) - {""}
+    chosen = [e for e in files(LEARN, distinct=True) if not wanted or e["category"] in wanted]
+    for entry in chosen[args.offset::args.every]:
+        if args.per_category and sum(r["category"] == entry["category"] for r in rows) >= args.per_category:
             continue
         record.clear()
-        prepare.prepare_object(entry["mesh"], scale=entry["scale"], rng=np.random.default_rng(0), coacd_cache_dir=None,
-                               **prepare_kwargs(args.mode))
+        prepare.prepare_object(entry["mesh"], scale=entry["scale"], rng=np.random.default_rng(0),
+                               coacd_cache_dir=None, **prepare_kwargs(args.mode))
         rows.append({"file": entry["file"], "category": entry["category"], **record})
         print(json.dumps(rows[-1]), flush=True)
         args.out.write_text(json.dumps({"mode": args.mode, "rows": rows}, indent=1))

@@ -30,7 +30,7 @@ from graspgen.errors import InputError
 from graspgen.geometry import coacd_process
 from graspgen.geometry.mesh_io import _check_mesh, _label
 from graspgen.geometry.part_merge import ConvexPart, convex_part, merge_convex_parts
-from graspgen.geometry.slack import HullSlack, hull_slack, outward_slack_p95
+from graspgen.geometry.slack import HullSlack, hull_slack, outward_slack_p95, rough_parts
 from graspgen.validation import check, check_choice, check_instance, check_number, check_positive_int
 
 __all__ = ["CoacdParams", "HullSlack", "cached_convex_decomposition", "coacd_cache_key", "convex_decomposition",
@@ -40,8 +40,9 @@ _log = logging.getLogger(__name__)
 
 
 # Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss.
-_COACD_CACHE_FORMAT = 3  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine;
-# 3: CoACD's pieces merged by bridge depth (part_merge), the refinement re-merges and cuts at half the threshold
+_COACD_CACHE_FORMAT = 4  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine;
+# 3: CoACD's pieces merged by bridge depth (part_merge), the refinement re-merges and cuts at half the threshold;
+# 4: the refinement cuts only the rough pieces again where they are a minority
 
 # A mesh whose volume is within this fraction of its hull's volume is treated as convex.
 _CONVEX_VOLUME_TOLERANCE = 1e-6
@@ -57,6 +58,16 @@ _PREPROCESS_MODES = ("unless_watertight", "auto", "on", "off")
 # and knives), and beyond about four times the cap the merge back down to it bridges again what the cut separated.
 _QUARTER_CUT_PIECES = 2
 _HALF_CUT_PIECES = 4
+
+# A piece of the first cut is rough when more of its surface than this stands over ``slack_p95`` outside the mesh:
+# the share the p95 criterion allows the whole union, asked of each piece.
+_ROUGH_SHARE = 0.05
+
+# The refinement cuts the rough pieces alone, each a CoACD run on the mesh inside it, where they hold at most this share
+# of the first cut's area; beyond, the whole mesh is cut again. A cut costs about in proportion to the pieces it makes
+# (0.03-0.05 CPU s each), and these in proportion to the area it cuts at a given concavity, so the rough pieces alone
+# cost less where they are a minority of the area (``studies/rough_piece_refine.py``).
+_ROUGH_AREA = 0.5
 
 
 def _is_int(value: object) -> bool:
@@ -103,13 +114,16 @@ class CoacdParams:
     refine_excess: float = 0.01
     """If the parts' total volume exceeds the mesh's by more than this fraction, they may bridge a concavity the
     gripper could reach (a thin-walled cup or bowl: parts filling its cavity make every grasp on its rim collide);
-    if their hull slack (p95, :func:`hull_slack`) is also over ``slack_p95``, the parts are refined: where CoACD
-    made at most four times ``max_convex_hull`` pieces, the mesh is cut again, at a quarter of the threshold where
-    it made at most twice ``max_convex_hull``, else at half (a cut at a quarter makes 5-7 times the pieces, at half
-    2-3.5 times; more pieces than that are merged back to the cap, which bridges again what the cut separated, at
-    the cost of the cut); otherwise its pieces are merged again; either down to four times ``max_convex_hull``,
-    and the parts of lower slack are kept. 0 turns this off; 0.1 before issue 24's part merge, whose parts bridge
-    less volume for the same slack."""
+    if their hull slack (p95, :func:`hull_slack`) is also over ``slack_p95``, the parts are refined. Where CoACD made
+    at most four times ``max_convex_hull`` pieces: if the rough ones (over 5 % of a piece's surface more than
+    ``slack_p95`` out of the mesh) hold at most half the pieces' area, each is cut again alone, on the mesh inside it,
+    at the concavity of a quarter of the threshold, and the others are kept; if not, or if the slack is still over
+    ``slack_p95``, the whole mesh is cut again, at a quarter of the threshold where CoACD made at most twice
+    ``max_convex_hull`` pieces, else at half (a cut at a quarter makes 5-7 times the pieces, at half 2-3.5 times; more
+    pieces than that are merged back to the cap, which bridges again what the cut separated, at the cost of the
+    cut). With more pieces, they are merged again. Each try is merged down to four times ``max_convex_hull``, and the
+    parts of lowest slack are kept. 0 turns this off; 0.1 before issue 24's part merge, whose parts bridge less
+    volume for the same slack."""
 
     preprocess_mode: str = "unless_watertight"
     """CoACD's manifold pre-processing (rebuilding the mesh as a level set on a voxel grid of
@@ -194,32 +208,42 @@ def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tup
     closed = _is_closed(mesh)
     if closed and (_is_convex(mesh, hull) or _near_convex(mesh, hull, params)):
         return [_part_arrays(hull)]
-    pieces = _coacd_pieces(mesh, hull, params, closed)
-    if not pieces:
-        _log.warning("%s: CoACD returned no usable part, using the convex hull", _label(mesh))
-        return [_part_arrays(hull)]
-    parts = _merged(pieces, params.max_convex_hull, params)
-    if params.refine_excess > 0 and _volume_excess(mesh, parts) > params.refine_excess:
-        slack = _slack_p95(mesh, parts, params)
-        if slack > params.slack_p95:
-            parts = _refined(mesh, hull, closed, pieces, (parts, slack), params)
+    with coacd_process.shared_process():  # the first cut and the refinement's: one CoACD process to start
+        pieces = _coacd_pieces(mesh, hull, params, closed)
+        if not pieces:
+            _log.warning("%s: CoACD returned no usable part, using the convex hull", _label(mesh))
+            return [_part_arrays(hull)]
+        parts = _merged(pieces, params.max_convex_hull, params)
+        if params.refine_excess > 0 and _volume_excess(mesh, parts) > params.refine_excess:
+            slack = _slack_p95(mesh, parts, params)
+            if slack > params.slack_p95:
+                parts = _refined(mesh, hull, closed, pieces, (parts, slack), params)
     return [_part_arrays(part) for part in _sorted_parts(parts)]
 
 
 def _refined(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, closed: bool, pieces: list[ConvexPart],
              first: tuple[list[ConvexPart], float], params: CoacdParams) -> list[ConvexPart]:
-    """The parts of lower slack of ``first`` (parts, slack p95) and a second try merged down to four times
-    ``max_convex_hull``: a finer cut where there are at most four times ``max_convex_hull`` ``pieces`` (at a
-    quarter of the threshold where there are at most twice ``max_convex_hull``, else at half), else the same
-    pieces merged again."""
+    """The parts of lower slack of ``first`` (parts, slack p95) and the tries below, each merged down to four times
+    ``max_convex_hull``. Where there are at most four times ``max_convex_hull`` ``pieces``: if the rough ones
+    (:data:`_ROUGH_SHARE`) hold at most half their area (:data:`_ROUGH_AREA`), they are cut again alone at a quarter
+    of the threshold (:func:`_rough_pieces_recut`); if not, or if that leaves the slack over ``slack_p95``, the whole
+    mesh is cut again, at a quarter of the threshold where there are at most twice ``max_convex_hull`` pieces, else
+    at half. With more pieces, the same pieces are merged again."""
     cap = -1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull
     tries = {"first": first}
     if cap == -1 or len(pieces) <= _HALF_CUT_PIECES * params.max_convex_hull:
-        divisor = 4 if cap == -1 or len(pieces) <= _QUARTER_CUT_PIECES * params.max_convex_hull else 2
-        finer = _coacd_pieces(mesh, hull, dataclasses.replace(params, threshold=params.threshold / divisor), closed)
-        if finer:
-            recut = _merged(finer, cap, params)
-            tries[f"cut at 1/{divisor}"] = (recut, _slack_p95(mesh, recut, params))
+        rough = rough_parts(mesh, [_part_arrays(p) for p in pieces], params.slack_p95, _ROUGH_SHARE,
+                            params.slack_samples, np.random.default_rng(params.seed), area_limit=_ROUGH_AREA)
+        if rough is not None and rough.any():
+            recut = _merged(_rough_pieces_recut(mesh, pieces, rough, params), cap, params)
+            tries[f"{rough.sum()} rough of {len(pieces)} cut at 1/4"] = (recut, _slack_p95(mesh, recut, params))
+        if min(slack for _, slack in tries.values()) > params.slack_p95:
+            divisor = 4 if cap == -1 or len(pieces) <= _QUARTER_CUT_PIECES * params.max_convex_hull else 2
+            finer = _coacd_pieces(mesh, hull, dataclasses.replace(params, threshold=params.threshold / divisor),
+                                  closed)
+            if finer:
+                recut = _merged(finer, cap, params)
+                tries[f"cut at 1/{divisor}"] = (recut, _slack_p95(mesh, recut, params))
     elif len(pieces) > params.max_convex_hull:
         # Only where no finer cut is affordable: on ../shared/learn's meshes the finer cut had the lower slack
         # every time both were tried (25 of 25).
@@ -230,6 +254,44 @@ def _refined(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, closed: bool, pieces:
               _label(mesh), len(pieces), 100 * _volume_excess(mesh, first[0]), 1e3 * first[1], best,
               1e3 * tries[best][1], ", ".join(tries))
     return tries[best][0]
+
+
+def _rough_pieces_recut(mesh: trimesh.Trimesh, pieces: list[ConvexPart], rough: np.ndarray,
+                        params: CoacdParams) -> list[ConvexPart]:
+    """``pieces`` with each rough one (``rough (p,) bool``) replaced by CoACD's pieces of the mesh inside it (a
+    manifold intersection), cut at the absolute concavity of a whole-mesh cut at a quarter of the threshold (CoACD's
+    threshold is relative to half the largest extent of what it cuts), all in one CoACD process. A rough piece is
+    kept as it is where the mesh inside it is empty or CoACD fails on it (logged)."""
+    half_extent = float(np.max(np.ptp(mesh.vertices, axis=0))) / 2
+    which, requests = [], []
+    for i in np.flatnonzero(rough):
+        inside = _mesh_inside(mesh, pieces[i])
+        if inside is None:
+            continue
+        threshold = min(1.0, params.threshold / 4 * half_extent / (float(np.max(np.ptp(inside.vertices, axis=0))) / 2))
+        which.append(i)
+        requests.append((np.asarray(inside.vertices, dtype=np.float64), np.asarray(inside.faces, dtype=np.int32),
+                         _coacd_kwargs(dataclasses.replace(params, threshold=threshold), closed=True)))
+    recut = {i: answer for i, answer in zip(which, coacd_process.run_coacd_each(requests))}
+    min_volume = _MIN_PART_VOLUME_RATIO * mesh.convex_hull.volume
+    out = []
+    for i, piece in enumerate(pieces):
+        answer = recut.get(i)
+        if isinstance(answer, InputError):
+            _log.warning("%s: rough piece %d kept as it is: %s", _label(mesh), i, answer)
+        cut = [_convex_part(v, f) for v, f in answer] if isinstance(answer, list) else []
+        cut = [c for c in cut if c is not None and c.volume > min_volume]
+        out += cut or [piece]
+    return out
+
+
+def _mesh_inside(mesh: trimesh.Trimesh, piece: ConvexPart) -> trimesh.Trimesh | None:
+    """The closed mesh of what of ``mesh`` lies inside the convex ``piece``, or None where that has no volume."""
+    inside = trimesh.boolean.intersection(
+        [mesh, trimesh.Trimesh(piece.vertices, piece.faces, process=False)], engine="manifold")
+    if inside.is_empty or not inside.volume > 0:
+        return None
+    return inside
 
 
 def _coacd_pieces(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdParams,
@@ -279,25 +341,30 @@ def _is_convex(mesh: trimesh.Trimesh, hull: trimesh.Trimesh) -> bool:
 
 
 def _run_coacd(mesh: trimesh.Trimesh, params: CoacdParams, closed: bool) -> list:
+    try:
+        return coacd_process.run_coacd(np.asarray(mesh.vertices, dtype=np.float64),
+                                       np.asarray(mesh.faces, dtype=np.int32), **_coacd_kwargs(params, closed))
+    except InputError as exc:
+        raise type(exc)(f"{_label(mesh)}: {exc}") from None
+
+
+def _coacd_kwargs(params: CoacdParams, closed: bool) -> dict:
+    """``coacd.run_coacd``'s keyword arguments for ``params`` and a mesh that is ``closed`` or not."""
     mode = params.preprocess_mode
     if mode == "unless_watertight":
         mode = "off" if closed else "auto"
-    try:
-        return coacd_process.run_coacd(
-            np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32),
-            threshold=params.threshold,
-            max_convex_hull=-1,
-            merge=False,  # merge_convex_parts merges, at a fraction of the cost of CoACD's all-pairs merge
-            preprocess_mode=mode,
-            preprocess_resolution=params.preprocess_resolution,
-            resolution=params.resolution,
-            mcts_nodes=params.mcts_nodes,
-            mcts_iterations=params.mcts_iterations,
-            mcts_max_depth=params.mcts_depth,
-            seed=params.seed,
-        )
-    except InputError as exc:
-        raise type(exc)(f"{_label(mesh)}: {exc}") from None
+    return dict(
+        threshold=params.threshold,
+        max_convex_hull=-1,
+        merge=False,  # merge_convex_parts merges, at a fraction of the cost of CoACD's all-pairs merge
+        preprocess_mode=mode,
+        preprocess_resolution=params.preprocess_resolution,
+        resolution=params.resolution,
+        mcts_nodes=params.mcts_nodes,
+        mcts_iterations=params.mcts_iterations,
+        mcts_max_depth=params.mcts_depth,
+        seed=params.seed,
+    )
 
 
 def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> ConvexPart | None:

@@ -16,7 +16,7 @@ import trimesh
 from graspgen.geometry.mesh_io import _check_mesh
 from graspgen.validation import check, check_positive_int
 
-__all__ = ["HullSlack", "hull_slack", "outward_slack_p95"]
+__all__ = ["HullSlack", "hull_slack", "outward_slack_p95", "rough_parts"]
 
 
 @dataclass(frozen=True)
@@ -140,6 +140,82 @@ def outward_slack_p95(
     return float(np.percentile(_top_outward(mesh, points, len(points) - int(np.floor(0.95 * (len(points) - 1)))), 95))
 
 
+def rough_parts(
+    mesh: trimesh.Trimesh,
+    convex_parts: list[tuple[np.ndarray, np.ndarray]] | tuple[tuple[np.ndarray, np.ndarray], ...],
+    depth: float,
+    share: float,
+    n_samples: int,
+    rng: np.random.Generator,
+    area_limit: float = 1.0,
+) -> np.ndarray | None:
+    """Which parts stand more than ``depth`` (m) outside the mesh on more than ``share`` of their surface: where a
+    decomposition's slack comes from.
+
+    Parameters
+    ----------
+    mesh
+        Closed mesh, m.
+    convex_parts
+        ``(vertices (v, 3), faces (f, 3))`` per part, as :func:`hull_slack`'s.
+    depth
+        Distance outside the surface, m.
+    share
+        Share of a part's area samples, in [0, 1).
+    n_samples
+        Area samples over all the parts' faces together (a part gets about its share of the area).
+    rng
+        Source of the samples.
+    area_limit
+        Stop as soon as the parts found rough hold more than this share of the parts' total area, in (0, 1].
+
+    Returns
+    -------
+    (p,) bool or None
+        Per part, whether more than ``share`` of its samples lie farther than ``depth`` outside the mesh (False for a
+        part no sample fell on); None if the rough parts hold more than ``area_limit`` of the area. The side of the
+        mesh (a winding number) is settled only for the points farther than ``depth`` from its surface, farthest
+        first, and only until each part's answer, or the area limit, is known.
+    """
+    _check_mesh(mesh, "mesh")
+    check_positive_int("n_samples", n_samples)
+    check("convex_parts", len(convex_parts) > 0, "hold at least one part", len(convex_parts))
+    check("share", 0.0 <= share < 1.0, "be in [0, 1)", share)
+    check("area_limit", 0.0 < area_limit <= 1.0, "be in (0, 1]", area_limit)
+    union = _Union.of(convex_parts)
+    count = len(union.parts)
+    owner = np.concatenate([np.full(len(f), i) for i, (_, f) in enumerate(union.parts)])
+    triangles = union.triangles
+    area = np.bincount(owner, weights=_triangle_areas(triangles), minlength=count)
+    points, pick = _area_samples(triangles, n_samples, rng)
+    owner = owner[pick]
+    distance = _surface_distance(mesh, points)
+    needed = np.floor(share * np.bincount(owner, minlength=count)).astype(np.int64) + 1
+    far = np.flatnonzero(distance > depth)
+    far = far[np.argsort(-distance[far], kind="stable")]
+    settled = np.zeros(len(far), dtype=bool)
+    left = np.bincount(owner[far], minlength=count)  # far points not yet settled
+    found = np.zeros(count, dtype=np.int64)  # far points found outside
+    open_parts = (found < needed) & (found + left >= needed)
+    while open_parts.any():
+        take = np.flatnonzero(~settled & open_parts[owner[far]])[:_SIGN_BATCH]
+        settled[take] = True
+        batch = far[take]
+        outside = np.abs(_winding_number(mesh, points[batch])) <= 0.5
+        np.add.at(found, owner[batch[outside]], 1)
+        np.subtract.at(left, owner[batch], 1)
+        if area[found >= needed].sum() > area_limit * area.sum():
+            return None
+        open_parts = (found < needed) & (found + left >= needed)
+    rough = found >= needed
+    return None if area[rough].sum() > area_limit * area.sum() else rough
+
+
+def _triangle_areas(triangles: np.ndarray) -> np.ndarray:
+    """``(F,)`` the areas of ``(F, 3, 3)`` triangles."""
+    return 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
+
+
 _SIGN_BATCH = 256
 """Points whose side of the mesh :func:`_top_outward` settles at a time (a batch's winding numbers cost ~0.1 s on a
 2,000-triangle mesh)."""
@@ -199,7 +275,7 @@ def _boundary_samples(union: _Union, n: int, rng: np.random.Generator) -> np.nda
 
 def _area_samples(tri: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """``n`` points uniform by area on the triangles ``(F, 3, 3)``, and the triangle of each."""
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = _triangle_areas(tri)
     pick = rng.choice(len(tri), size=n, p=area / area.sum())
     u, w = rng.random(n), rng.random(n)
     flip = u + w > 1.0

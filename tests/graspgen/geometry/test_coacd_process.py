@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from graspgen.errors import InputError
-from graspgen.geometry.coacd_process import CoacdCrash, run_coacd
+from graspgen.geometry.coacd_process import CoacdCrash, run_coacd, run_coacd_each
 from tests.paths import TESTS
 from tests.shapes import l_shape
 
@@ -78,3 +78,29 @@ def test_a_mesh_coacd_1_0_14_segfaults_on_fails_alone():
     else:
         assert len(pieces) >= 1
     assert len(run_coacd(*_mesh(), **KWARGS)) > 1
+
+
+def test_many_meshes_in_one_child_each_failing_alone(monkeypatch):
+    """The crasher between good meshes and one CoACD rejects: each answer in its place, the good ones as a call of
+    their own gives them, in one child (two if the crasher still crashes)."""
+    with np.load(TESTS / "data" / "coacd_segfault.npz") as data:
+        crasher = (data["vertices"], data["faces"], json.loads(data["kwargs"].tobytes().decode()))
+    good = (*_mesh(), KWARGS)
+    children = []
+    popen = subprocess.Popen
+
+    def counted(*args, **kwargs):
+        children.append(args)
+        return popen(*args, **kwargs)
+
+    monkeypatch.setattr(subprocess, "Popen", counted)
+    answers = run_coacd_each([good, crasher, (*_mesh(), {**KWARGS, "threshold": "not a number"}), good])
+    alone = run_coacd(*_mesh(), **KWARGS)
+    assert isinstance(answers[2], InputError) and not isinstance(answers[2], CoacdCrash)
+    for answer in (answers[0], answers[3]):
+        assert [(v.tobytes(), f.tobytes()) for v, f in answer] == [(v.tobytes(), f.tobytes()) for v, f in alone]
+    if isinstance(answers[1], CoacdCrash):
+        assert str(answers[1]) == "CoACD crashed (SIGSEGV) while decomposing it"
+        assert len(children) == 3  # one until the crash, one for the rest, one for the call alone
+    else:
+        assert len(answers[1]) >= 1 and len(children) == 2

@@ -154,11 +154,13 @@ def _slabs(mesh: trimesh.Trimesh, count: int) -> list[tuple[np.ndarray, np.ndarr
                                                 (4 * FAST.max_convex_hull, [1, 2]),
                                                 (4 * FAST.max_convex_hull + 1, [1])])
 def test_cavity_bridged_from_outside_is_refined_by_a_cut_the_cap_can_keep(monkeypatch, pieces, thresholds):
-    # Up to twice max_convex_hull pieces: cut again at a quarter of the threshold; up to four times: at half; more:
-    # only merged again (a finer cut would make more pieces than the cap keeps). CoACD never merges itself.
+    # Every piece rough (slabs filling the bounding box): the whole mesh is cut again. Up to twice max_convex_hull
+    # pieces: at a quarter of the threshold; up to four times: at half; more: only merged again (a finer cut would
+    # make more pieces than the cap keeps). CoACD never merges itself.
     cup = _cup()
     recorder = Recorder(_slabs(cup, pieces))
     monkeypatch.setattr(coacd_process, "run_coacd", recorder)
+    monkeypatch.setattr(coacd_process, "run_coacd_each", _fail)
     convex_decomposition(cup, FAST)
     assert [FAST.threshold / c["threshold"] for c in recorder.calls] == pytest.approx(thresholds)
     assert all(c["merge"] is False and c["max_convex_hull"] == -1 for c in recorder.calls)
@@ -191,3 +193,86 @@ def test_decomposition_is_deterministic_and_keyed_by_the_new_settings():
 def test_bad_settings_name_their_field(field, value):
     with pytest.raises(SettingsError, match=field):
         CoacdParams(**{field: value})
+
+
+def _notch_pieces(bridged: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pieces of :func:`notched_box` (4 mm deep): the bottom slab and the rim's two end strips, exact, and the rim's
+    two side strips either as one piece bridging the notch (``bridged``) or exact."""
+    def box(low, high):
+        b = trimesh.creation.box(bounds=[low, high])
+        return b.vertices, b.faces
+
+    pieces = [box((-0.05, -0.03, -0.02), (0.05, 0.03, 0.016)), box((-0.05, -0.03, 0.016), (-0.03, 0.03, 0.02)),
+              box((0.03, -0.03, 0.016), (0.05, 0.03, 0.02))]
+    if bridged:
+        return pieces + [box((-0.03, -0.03, 0.016), (0.03, 0.03, 0.02))]
+    return pieces + [box((-0.03, -0.03, 0.016), (0.03, -0.02, 0.02)), box((-0.03, 0.02, 0.016), (0.03, 0.03, 0.02))]
+
+
+def test_a_minority_of_rough_pieces_is_cut_again_alone(monkeypatch):
+    """First cut: four pieces, one bridging the notch 4 mm deep (rough: a third of its surface stands over 1 mm out).
+    Only the mesh inside it, the notch's two side strips, goes to CoACD again (which gives them back as two boxes
+    here: CoACD 1.0.14 crashes on such boxes at fine thresholds), and the result meets the criterion."""
+    mesh = notched_box(0.004)
+    whole = Recorder(_notch_pieces(bridged=True))
+    each = []
+
+    def recording_each(requests):
+        each.extend(requests)
+        return [[(np.asarray(v), np.asarray(f)) for v, f in _notch_pieces(bridged=False)[3:]] for _ in requests]
+
+    monkeypatch.setattr(coacd_process, "run_coacd", whole)
+    monkeypatch.setattr(coacd_process, "run_coacd_each", recording_each)
+    parts = convex_decomposition(mesh, FAST)
+    assert len(whole.calls) == 1  # the first cut only: no cut of the whole mesh
+    (request,) = each
+    inside = trimesh.Trimesh(request[0], request[1])
+    assert inside.volume == pytest.approx(2 * 0.06 * 0.01 * 0.004, rel=1e-6)
+    # The same concavity in m as a whole-mesh cut at a quarter: relative to the strips' half extent, 0.03 m, not 0.05.
+    assert request[2]["threshold"] == pytest.approx(FAST.threshold / 4 * 0.05 / 0.03)
+    assert len(parts) == 5
+    assert hull_slack(mesh, parts, 20_000, np.random.default_rng(3)).p95 <= 1e-6
+
+
+def test_rough_pieces_that_crash_coacd_are_kept_and_the_whole_mesh_is_cut(monkeypatch):
+    mesh = notched_box(0.004)
+    whole = Recorder(_notch_pieces(bridged=True))
+    monkeypatch.setattr(coacd_process, "run_coacd", whole)
+    monkeypatch.setattr(coacd_process, "run_coacd_each",
+                        lambda requests: [CoacdCrash("CoACD crashed (SIGSEGV) while decomposing it")] * len(requests))
+    convex_decomposition(mesh, FAST)
+    # The rough piece kept leaves the slack over the criterion: the whole mesh is cut again, at a quarter.
+    assert [FAST.threshold / c["threshold"] for c in whole.calls] == pytest.approx([1, 4])
+
+
+def test_exact_pieces_are_not_refined(monkeypatch):
+    whole = Recorder(_notch_pieces(bridged=False))
+    monkeypatch.setattr(coacd_process, "run_coacd", whole)
+    monkeypatch.setattr(coacd_process, "run_coacd_each", _fail)
+    assert len(convex_decomposition(notched_box(0.004), FAST)) == 5
+    assert len(whole.calls) == 1
+
+
+def test_a_refined_decomposition_starts_one_coacd_process(monkeypatch):
+    import subprocess
+
+    started = []
+    popen = subprocess.Popen
+
+    def counted(*args, **kwargs):
+        started.append(args)
+        return popen(*args, **kwargs)
+
+    calls = []
+    run_coacd_each = coacd_process.run_coacd_each
+
+    def each(requests):
+        calls.append(len(requests))
+        return run_coacd_each(requests)
+
+    monkeypatch.setattr(subprocess, "Popen", counted)
+    monkeypatch.setattr(coacd_process, "run_coacd_each", each)
+    coarse = dataclasses.replace(FAST, threshold=0.2, max_convex_hull=4, refine_excess=0.01)
+    convex_decomposition(_cup(), coarse)
+    assert sum(calls) >= 2  # the first cut and at least one refinement
+    assert len(started) == 1
