@@ -42,7 +42,7 @@ _log = logging.getLogger(__name__)
 # Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss.
 _COACD_CACHE_FORMAT = 4  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine;
 # 3: CoACD's pieces merged by bridge depth (part_merge), the refinement re-merges and cuts at half the threshold;
-# 4: the refinement cuts only the rough pieces again where they are a minority
+# 4: the refinement cuts only the rough pieces again where they hold at most half the area
 
 # A mesh whose volume is within this fraction of its hull's volume is treated as convex.
 _CONVEX_VOLUME_TOLERANCE = 1e-6
@@ -273,15 +273,13 @@ def _rough_pieces_recut(mesh: trimesh.Trimesh, pieces: list[ConvexPart], rough: 
         requests.append((np.asarray(inside.vertices, dtype=np.float64), np.asarray(inside.faces, dtype=np.int32),
                          _coacd_kwargs(dataclasses.replace(params, threshold=threshold), closed=True)))
     recut = {i: answer for i, answer in zip(which, coacd_process.run_coacd_each(requests))}
-    min_volume = _MIN_PART_VOLUME_RATIO * mesh.convex_hull.volume
+    hull_volume = mesh.convex_hull.volume
     out = []
     for i, piece in enumerate(pieces):
         answer = recut.get(i)
         if isinstance(answer, InputError):
             _log.warning("%s: rough piece %d kept as it is: %s", _label(mesh), i, answer)
-        cut = [_convex_part(v, f) for v, f in answer] if isinstance(answer, list) else []
-        cut = [c for c in cut if c is not None and c.volume > min_volume]
-        out += cut or [piece]
+        out += (_usable(answer, hull_volume) if isinstance(answer, list) else []) or [piece]
     return out
 
 
@@ -296,10 +294,15 @@ def _mesh_inside(mesh: trimesh.Trimesh, piece: ConvexPart) -> trimesh.Trimesh | 
 
 def _coacd_pieces(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, params: CoacdParams,
                   closed: bool) -> list[ConvexPart]:
-    """CoACD's pieces as convex hulls, slivers (below 1e-6 of the mesh's hull volume) dropped."""
-    min_volume = _MIN_PART_VOLUME_RATIO * hull.volume
-    pieces = [_convex_part(vertices, faces) for vertices, faces in _run_coacd(mesh, params, closed)]
-    return [piece for piece in pieces if piece is not None and piece.volume > min_volume]
+    """CoACD's pieces as convex hulls, slivers dropped (:func:`_usable`)."""
+    return _usable(_run_coacd(mesh, params, closed), hull.volume)
+
+
+def _usable(pieces: list, hull_volume: float) -> list[ConvexPart]:
+    """CoACD's ``(vertices, faces)`` pieces as convex hulls, those with none or below 1e-6 of ``hull_volume`` (the
+    mesh's hull's, m^3) dropped."""
+    hulls = [_convex_part(vertices, faces) for vertices, faces in pieces]
+    return [h for h in hulls if h is not None and h.volume > _MIN_PART_VOLUME_RATIO * hull_volume]
 
 
 def _merged(pieces: list[ConvexPart], cap: int, params: CoacdParams) -> list[ConvexPart]:

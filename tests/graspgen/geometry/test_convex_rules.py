@@ -276,3 +276,19 @@ def test_a_refined_decomposition_starts_one_coacd_process(monkeypatch):
     convex_decomposition(_cup(), coarse)
     assert sum(calls) >= 2  # the first cut and at least one refinement
     assert len(started) == 1
+
+
+def test_the_mesh_inside_a_piece_is_the_same_bytes_every_time():
+    """The rough pieces' meshes (manifold3d intersections) go to CoACD: they must not vary between runs."""
+    from graspgen.geometry.convex import _mesh_inside
+    from graspgen.geometry.part_merge import convex_part
+
+    cup = _cup()
+    piece = convex_part(np.array([[-0.04, -0.04, 0.0], [0.04, -0.04, 0.0], [-0.04, 0.04, 0.0], [0.04, 0.04, 0.0],
+                                  [-0.04, -0.04, 0.05], [0.04, -0.04, 0.05], [-0.04, 0.04, 0.05],
+                                  [0.04, 0.04, 0.05]]))
+    first, second = _mesh_inside(cup, piece), _mesh_inside(cup, piece)
+    assert first.is_watertight and 0 < first.volume < cup.volume
+    assert first.vertices.tobytes() == second.vertices.tobytes() and first.faces.tobytes() == second.faces.tobytes()
+    outside = convex_part(np.array([[1.0, 1, 1], [1.1, 1, 1], [1, 1.1, 1], [1, 1, 1.1]]))
+    assert _mesh_inside(cup, outside) is None
