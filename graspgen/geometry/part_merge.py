@@ -7,7 +7,10 @@ only pieces whose bounding boxes touch are candidates, and a pair is judged by i
 hull of the two stands outside the pieces they were made of, the same quantity (in m) as the hull slack the
 decomposition is judged by (:mod:`graspgen.geometry.slack`), since the pieces themselves follow the surface.
 Pairs are merged shallowest first while the depth is within ``free_depth`` (merging them costs the gripper nothing)
-or while more than ``max_parts`` parts are left.
+or while more than ``max_parts`` parts are left. A merged part keeps its pieces' planes (each once) and which piece
+each of its corners came from: a probe of a pair's hull is measured first against its face's corners' pieces only, an
+upper bound on its distance, and against every piece only while that bound could be the deepest (a merge of a fine
+cut's pieces down to a few parts was spent measuring every probe against every piece: 8.7 -> 2.1 s on a bottle's 145).
 """
 
 from __future__ import annotations
@@ -57,7 +60,7 @@ def convex_part(points: np.ndarray) -> ConvexPart:
     return ConvexPart(np.ascontiguousarray(vertices), faces.astype(np.int32), float(hull.volume))
 
 
-def bridge_depth(points: np.ndarray, pieces: list[np.ndarray]) -> float:
+def bridge_depth(points: np.ndarray, pieces: list[np.ndarray], owners: np.ndarray | None = None) -> float:
     """How far the convex hull of ``points`` stands outside the union of convex ``pieces``, m.
 
     Parameters
@@ -67,6 +70,10 @@ def bridge_depth(points: np.ndarray, pieces: list[np.ndarray]) -> float:
     pieces
         The pieces as their hulls' plane equations, each ``(k, 4) float`` rows ``[normal, offset]`` with
         ``normal @ x + offset <= 0`` inside (scipy's ``ConvexHull.equations``).
+    owners
+        ``(n,) int`` the piece each point is a vertex of, or None. It only saves time: with it, each probe is first
+        measured against the pieces its face's corners belong to, which bounds its distance from above, and only the
+        probes whose bound could still be the answer are measured against every piece. The result is the same.
 
     Returns
     -------
@@ -76,23 +83,63 @@ def bridge_depth(points: np.ndarray, pieces: list[np.ndarray]) -> float:
         Euclidean distance near its edges and corners). 0 when every probe lies in a piece.
     """
     hull = ConvexHull(points)
-    triangles = points[hull.simplices]
-    probes = np.einsum("kj,fjd->fkd", _FACE_POINTS, triangles).reshape(-1, 3)
-    nearest = np.full(len(probes), np.inf)
-    for planes in pieces:
-        outside = np.maximum((probes @ planes[:, :3].T + planes[:, 3]).max(axis=1), 0.0)
-        nearest = np.minimum(nearest, outside)
-    return float(nearest.max())
+    probes = np.einsum("kj,fjd->fkd", _FACE_POINTS, points[hull.simplices]).reshape(-1, 3)
+    planes = np.vstack(pieces)
+    starts = np.cumsum([0] + [len(p) for p in pieces[:-1]])
+    if owners is None or len(pieces) <= _FEW_PIECES:
+        return float(_nearest_piece_distance(probes, planes, starts).max())
+    corners = np.repeat(np.asarray(owners)[hull.simplices], len(_FACE_POINTS), axis=0)
+    upper = np.full(len(probes), np.inf)
+    for piece in np.unique(corners):
+        rows = np.flatnonzero((corners == piece).any(axis=1))
+        upper[rows] = np.minimum(upper[rows], _piece_distance(probes[rows], pieces[piece]))
+    deepest = 0.0
+    order = np.argsort(-upper, kind="stable")
+    for start in range(0, len(order), _EXACT_BATCH):
+        batch = order[start:start + _EXACT_BATCH]
+        if upper[batch[0]] <= deepest:  # the bound of every probe left: none of them is deeper
+            break
+        deepest = max(deepest, float(_nearest_piece_distance(probes[batch], planes, starts).max()))
+    return deepest
+
+
+_FEW_PIECES = 4
+"""Up to this many pieces, every probe is measured against all of them at once (the bounds cost more than they save)."""
+
+_EXACT_BATCH = 64
+"""Probes measured against every piece at once, deepest bound first, until the bound of the next is no deeper."""
+
+
+def _violations(probes: np.ndarray, planes: np.ndarray) -> np.ndarray:
+    """``(p, k)`` signed distances of ``(p, 3)`` probes to ``(k, 4)`` planes, in a fixed order of operations (not a
+    matrix product, whose rounding depends on the shapes and the CPU): a probe's distance to a plane is the same bits
+    whichever other probes and planes it is measured with."""
+    return (probes[:, 0:1] * planes[:, 0] + probes[:, 1:2] * planes[:, 1] + probes[:, 2:3] * planes[:, 2]
+            + planes[:, 3])
+
+
+def _piece_distance(probes: np.ndarray, planes: np.ndarray) -> np.ndarray:
+    """``(p,)`` each probe's largest violation of one piece's planes, 0 inside it."""
+    return np.maximum(_violations(probes, planes).max(axis=1), 0.0)
+
+
+def _nearest_piece_distance(probes: np.ndarray, planes: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """``(p,)`` each probe's :func:`_piece_distance` to the nearest of the pieces whose planes start at rows
+    ``starts`` of ``planes``."""
+    per_piece = np.maximum.reduceat(_violations(probes, planes), starts, axis=1)
+    return np.maximum(per_piece.min(axis=1), 0.0)
 
 
 class _Parts:
-    """The parts while merging: hull points, the planes of the pieces each was made of, and bounding boxes (room for
-    every part a merge can make: ``2 n - 1`` in all)."""
+    """The parts while merging: hull points, the planes of the pieces each was made of, which of them each point is a
+    corner of, and bounding boxes (room for every part a merge can make: ``2 n - 1`` in all)."""
 
     def __init__(self, vertices: list[np.ndarray]):
         hulls = [ConvexHull(v) for v in vertices]
         self.points = [v[h.vertices] for v, h in zip(vertices, hulls)]
-        self.pieces = [[h.equations] for h in hulls]
+        # qhull's triangles of one flat facet (a cut face: many) repeat its plane: once does for a largest violation
+        self.pieces = [[np.unique(h.equations, axis=0)] for h in hulls]
+        self.owners = [np.zeros(len(p), dtype=np.int64) for p in self.points]
         room = max(2 * len(hulls) - 1, 1)
         self.alive = np.zeros(room, dtype=bool)
         self.alive[: len(hulls)] = True
@@ -109,12 +156,20 @@ class _Parts:
         return np.flatnonzero(touch) + start
 
     def depth(self, i: int, j: int) -> float:
-        return bridge_depth(np.vstack([self.points[i], self.points[j]]), self.pieces[i] + self.pieces[j])
+        points, owners = self._joined(i, j)
+        return bridge_depth(points, self.pieces[i] + self.pieces[j], owners)
+
+    def _joined(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Both parts' points, and the piece of ``pieces[i] + pieces[j]`` each is a corner of."""
+        return (np.vstack([self.points[i], self.points[j]]),
+                np.concatenate([self.owners[i], self.owners[j] + len(self.pieces[i])]))
 
     def merge(self, i: int, j: int) -> int:
-        both = np.vstack([self.points[i], self.points[j]])
+        both, owners = self._joined(i, j)
         k = len(self.points)
-        self.points.append(both[ConvexHull(both).vertices])
+        corners = ConvexHull(both).vertices
+        self.points.append(both[corners])
+        self.owners.append(owners[corners])
         self.pieces.append(self.pieces[i] + self.pieces[j])
         self.low[k], self.high[k] = self.points[k].min(axis=0), self.points[k].max(axis=0)
         self.alive[[i, j]] = False

@@ -10,6 +10,7 @@ import pytest
 import trimesh
 from scipy.spatial import ConvexHull
 
+from graspgen.geometry import part_merge
 from graspgen.geometry.part_merge import bridge_depth, convex_part, merge_convex_parts
 
 
@@ -95,3 +96,47 @@ def test_convex_part_is_the_hull_wound_outward():
     mesh = trimesh.Trimesh(part.vertices, part.faces, process=False)
     assert mesh.is_winding_consistent and mesh.volume == pytest.approx(part.volume, rel=1e-12)  # > 0: outward
     assert part.faces.dtype == np.int32 and part.faces.max() == len(part.vertices) - 1
+
+
+def _pieces_of_a_curved_shell(rng: np.random.Generator, count: int) -> list[np.ndarray]:
+    """``count`` convex pieces tiling a thick, randomly bumped half-cylinder shell (cut like CoACD cuts a bowl's wall):
+    each ``(v, 3)`` vertices, neighbours sharing their cut faces."""
+    edges = np.linspace(0.0, np.pi, count + 1)
+    pieces = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        angles = np.linspace(a, b, 4)
+        radius = 1.0 + 0.05 * rng.random(4)
+        ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        section = np.concatenate([ring * radius[:, None], ring * (radius[:, None] - 0.1)])
+        pieces.append(np.concatenate([np.c_[section, np.zeros(8)], np.c_[section, np.full(8, 0.5)]]))
+    return pieces
+
+
+@pytest.mark.parametrize("batch", [1, 64])
+def test_bridge_depth_with_owners_is_the_same_bits_as_against_every_piece(monkeypatch, batch):
+    # The corners' pieces only bound each probe's distance: the answer must be exactly the full measurement's (probes
+    # measured in full one at a time too, where a bound that is not one would stop the search early).
+    monkeypatch.setattr(part_merge, "_EXACT_BATCH", batch)
+    rng = np.random.default_rng(11)
+    for count in (3, 6, 12, 24):
+        pieces = _pieces_of_a_curved_shell(rng, count)
+        for first, last in ((0, count), (0, count // 2), (count // 3, count)):
+            chosen = pieces[first:last]
+            hulls = [ConvexHull(p) for p in chosen]
+            points = np.vstack([p[h.vertices] for p, h in zip(chosen, hulls)])
+            owners = np.concatenate([np.full(len(h.vertices), i) for i, h in enumerate(hulls)])
+            equations = [h.equations for h in hulls]
+            full = bridge_depth(points, equations)
+            assert full > 0.0  # the shell's chord bridges its inside
+            assert bridge_depth(points, equations, owners) == full
+
+
+def test_merge_of_many_pieces_matches_a_plane_by_plane_reference(monkeypatch):
+    # merge_convex_parts measures with owners and deduplicated planes; the result must not depend on it.
+    rng = np.random.default_rng(12)
+    pieces = _pieces_of_a_curved_shell(rng, 30)
+    merged = merge_convex_parts(pieces, max_parts=6, free_depth=1e-3)
+    assert len(merged) == 6
+    monkeypatch.setattr(part_merge, "bridge_depth", lambda points, planes, owners=None: bridge_depth(points, planes))
+    reference = merge_convex_parts(pieces, max_parts=6, free_depth=1e-3)
+    assert [p.tobytes() for p in merged] == [p.tobytes() for p in reference]
