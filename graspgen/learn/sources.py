@@ -95,7 +95,8 @@ def _widths(mesh, T: np.ndarray, gripper) -> np.ndarray:
     return np.where(np.isfinite(w), np.clip(w, gripper.min_width, gripper.max_width), gripper.max_width)
 
 
-_PHYSICS_CODE = ("graspgen/evaluate.py", "graspgen/sim", "graspgen/geometry", "graspgen/quality", "assets/grippers")
+_PHYSICS_CODE = ("graspgen/workflows", "graspgen/sim", "graspgen/geometry", "graspgen/grippers", "graspgen/quality",
+                 "assets/grippers")
 """What simulated labels depend on besides their inputs: an edit there (or another MuJoCo) makes new labels."""
 
 

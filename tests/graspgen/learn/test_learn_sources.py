@@ -111,3 +111,18 @@ def test_dataset_sets_read_a_folder(tmp_path, monkeypatch):
     (root / "objects" / "a.h5").unlink()
     with pytest.raises(InputError, match="a.h5"):
         sources.dataset_sets(root)
+
+
+def test_the_physics_digest_covers_code_that_exists_and_what_evaluates():
+    # A path that moved away leaves its code out of the sim-label cache key: edited, it would reuse stale labels.
+    from pathlib import Path
+
+    from graspgen.workflows import evaluate, evaluation_world
+
+    root = Path(sources.__file__).resolve().parents[2]
+    for rel in sources._PHYSICS_CODE:
+        assert (root / rel).exists(), rel
+    covered = [root / rel for rel in sources._PHYSICS_CODE]
+    for module in (evaluate, evaluation_world):
+        path = Path(module.__file__).resolve()
+        assert any(path == top or top in path.parents for top in covered), path
