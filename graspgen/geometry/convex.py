@@ -40,9 +40,10 @@ _log = logging.getLogger(__name__)
 
 
 # Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss.
-_COACD_CACHE_FORMAT = 4  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine;
+_COACD_CACHE_FORMAT = 5  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine;
 # 3: CoACD's pieces merged by bridge depth (part_merge), the refinement re-merges and cuts at half the threshold;
-# 4: the refinement cuts only the rough pieces again where they hold at most half the area
+# 4: the refinement cuts only the rough pieces again where they hold at most half the area; 5: the part merge measures
+# its bridge depths in a fixed order of operations (a tie at the last bit can merge another pair)
 
 # A mesh whose volume is within this fraction of its hull's volume is treated as convex.
 _CONVEX_VOLUME_TOLERANCE = 1e-6
