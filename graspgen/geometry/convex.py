@@ -103,7 +103,9 @@ class CoacdParams:
     2.28 mm, 2.7 s -> 61, 1.94 mm, 2.3 s)."""
 
     mcts_depth: int = 3
-    """Maximum depth of the Monte-Carlo tree search (cuts looked ahead)."""
+    """Maximum depth of the Monte-Carlo tree search (cuts looked ahead). At 2, on ../shared/learn's meshes, the
+    total time did not fall and the worst rose: its cuts leave more slack, so more meshes are refined
+    (docs/cluster.md)."""
 
     mcts_nodes: int = 5
     """Child nodes expanded per Monte-Carlo tree search node (candidate cutting planes); 5 since issue 24's part
