@@ -7,7 +7,7 @@ bounded memory they would need the table sorted out of core, once per label. So 
 
 - **keeps every value while the table has at most** :data:`EXACT_ROWS` **rows** (41 bytes a row with four labels:
   11 MB at the cap): every figure is computed as before from the whole columns, so a card of that size (the default
-  and smoke configs' ~3,000 and ~60 grasps) is the same, byte for byte;
+  and smoke configs' ~900 and ~60 grasps) is the same, byte for byte;
 - **beyond it, streams what merges exactly** in constant memory per label: the count, min and max, the mean and the
   sum of squared deviations (merged by Chan, Golub and LeVeque's pairwise update), the count of each distinct value
   while there are at most :data:`DISCRETE_LABEL_VALUES` (so per-value histograms, and the quantiles of such labels
