@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_prep import LEARN, ROOT, files
+from bench.bench_prep import LEARN, ROOT, files, prepare_kwargs
 from graspgen.geometry.mesh_io import load_mesh
 from graspgen.geometry.repair import repair_mesh
 from graspgen.geometry.units import normalize_units
@@ -42,12 +42,14 @@ def main() -> None:
     ap.add_argument("--results", type=Path, default=RESULTS)
     args = ap.parse_args()
     rows = {r["file"]: r for r in json.loads(args.results.read_text())["rows"] if r["mode"] == "pipeline"}
+    stage = prepare_kwargs("pipeline")  # the objects stage's extent bounds, as it prepares the mesh
     table = []
     for entry in files(LEARN, distinct=True):
         if entry["file"] not in rows:
             continue
         mesh, _ = repair_mesh(load_mesh(entry["mesh"]))
-        mesh, _, _ = normalize_units(mesh, scale=entry["scale"], min_extent=0.005, max_extent=0.5)
+        mesh, _, _ = normalize_units(mesh, scale=entry["scale"], min_extent=stage["min_extent"],
+                                     max_extent=stage["max_extent"])
         hull = mesh.convex_hull
         pieces, how = way(rows[entry["file"]]["log"])
         table.append((entry["category"], mesh.volume / hull.volume, mesh.area / hull.area,
