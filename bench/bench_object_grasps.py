@@ -4,11 +4,13 @@ Two measurements, in one process:
 
 * **throughput**: every bundled object (``assets/objects``) prepared as the objects stage does (repair, units,
   mass from the catalog density, CoACD parts from the ``.cache/coacd`` cache; no stable-pose physics check: free
-  space does not use it), then :func:`graspgen.workflows.object_grasps.label_object_grasps` with the Panda, the
-  ``acronym`` protocol and ``--positives`` / ``--negatives`` targets (default 100 / 100, ``--max-candidates``
-  2,000). Labelled grasps per core-hour = kept rows / CPU seconds of the labelling (``time.process_time``: the
-  machine may be shared, so wall time would charge us for other processes) x 3,600; wall-clock figures are
-  printed beside it. Preparing the meshes is not counted (the objects stage's work, cached).
+  space does not use it), then :func:`graspgen.workflows.object_grasps.label_object_grasps` with the Panda and the
+  ``acronym`` protocol, once per selection (``--selections``), in this process: ``natural`` (the default set:
+  ``--grasps`` collision-free grasps, default 200, firm label) and ``balanced`` (the sets before 2026-12-07:
+  ``--positives`` / ``--negatives`` targets, default 100 / 100, held label, near misses), both at most
+  ``--max-candidates`` (3,000). Labelled grasps per core-hour = kept rows / CPU seconds of the labelling
+  (``time.process_time``: the machine may be shared, so wall time would charge us for other processes) x 3,600;
+  wall-clock figures are printed beside it. Preparing the meshes is not counted (the objects stage's work, cached).
 * **baseline ratio**: on one object (``--baseline-object``, default the mug) ``--baseline-n`` candidates (default
   300) labelled with every candidate kept (targets above ``max_candidates``), then the same poses rolled out by
   plain :func:`graspgen.workflows.evaluate.evaluate_grasps` (same mesh, CoACD settings, mass, friction, gripper and
@@ -18,8 +20,9 @@ Two measurements, in one process:
 
 The goal: at least 100,000 labelled grasps per core-hour (27.8 per CPU second).
 
-Usage: ``python -m bench.bench_object_grasps [--positives 100] [--negatives 100] [--max-candidates 2000]
-[--objects box,mug] [--baseline-object mug] [--baseline-n 300] [--out bench/results_object_grasps.json]``
+Usage: ``python -m bench.bench_object_grasps [--grasps 200] [--positives 100] [--negatives 100]
+[--max-candidates 3000] [--selections natural,balanced] [--objects box,mug] [--baseline-object mug] [--baseline-n 300]
+[--out bench/results_object_grasps.json]``
 """
 
 from __future__ import annotations
@@ -110,8 +113,8 @@ def throughput(names: list[str], params: ObjectGraspsParams) -> dict:
 def baseline(name: str, n: int, params: ObjectGraspsParams) -> dict:
     record = prepare(name)
     every = ObjectGraspsParams(**{**{f: getattr(params, f) for f in ("gripper", "protocol", "friction")},
-                                  "target_positives": n, "target_negatives": n, "max_candidates": n,
-                                  "collision_share": 1.0})  # keep every candidate, collisions too
+                                  "selection": "balanced", "target_positives": n, "target_negatives": n,
+                                  "max_candidates": n, "collision_share": 1.0})  # every candidate, collisions too
     c0 = time.process_time()
     table, meta = label_object_grasps(record, every, np.random.default_rng(1))
     ours_cpu = time.process_time() - c0
@@ -142,22 +145,39 @@ def baseline(name: str, n: int, params: ObjectGraspsParams) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--positives", type=int, default=100)
-    ap.add_argument("--negatives", type=int, default=100)
-    ap.add_argument("--max-candidates", type=int, default=2000)
+    ap.add_argument("--grasps", type=int, default=200, help="natural selection: collision-free grasps per object")
+    ap.add_argument("--positives", type=int, default=100, help="balanced selection: positives per object")
+    ap.add_argument("--negatives", type=int, default=100, help="balanced selection: negatives per object")
+    ap.add_argument("--max-candidates", type=int, default=3000)
+    ap.add_argument("--selections", default="natural,balanced",
+                    help="comma-separated: natural (the default set: firm label), balanced (the sets before "
+                         "2026-12-07: held label, near misses); each measured in this process")
     ap.add_argument("--objects", default=",".join(e for e in sorted(catalog())), help="comma-separated names")
     ap.add_argument("--baseline-object", default="mug")
     ap.add_argument("--baseline-n", type=int, default=300)
     ap.add_argument("--out", type=Path, default=ROOT / "bench" / "results_object_grasps.json")
     args = ap.parse_args(argv)
-    params = ObjectGraspsParams(target_positives=args.positives, target_negatives=args.negatives,
-                                max_candidates=args.max_candidates)
-    print(f"object grasps: gripper {params.gripper}, protocol {params.protocol}, targets {args.positives} / "
-          f"{args.negatives}, at most {args.max_candidates} candidates, batches of {params.batch_size} "
-          f"({params.near_misses_per_batch} near misses); python {platform.python_version()}", flush=True)
-    results = {"throughput": throughput(args.objects.split(","), params),
-               "baseline": baseline(args.baseline_object, args.baseline_n, params),
-               "goal_per_core_hour": GOAL_PER_CORE_HOUR, "platform": platform.platform()}
+    settings = {
+        "natural": ObjectGraspsParams(selection="natural", label="firm", target_grasps=args.grasps,
+                                      max_candidates=args.max_candidates),
+        "balanced": ObjectGraspsParams(selection="balanced", label="held", target_positives=args.positives,
+                                       target_negatives=args.negatives, max_candidates=args.max_candidates),
+    }
+    results: dict = {"throughput": {}}
+    for selection in args.selections.split(","):
+        params = settings[selection]
+        print(f"\n{selection}: gripper {params.gripper}, protocol {params.protocol}, label {params.label}, targets "
+              + (f"{args.grasps} collision-free" if selection == "natural" else
+                 f"{args.positives} / {args.negatives} ({params.near_misses_per_batch} near misses per batch)")
+              + f", at most {args.max_candidates} candidates; python {platform.python_version()}", flush=True)
+        results["throughput"][selection] = throughput(args.objects.split(","), params)
+    rates = {k: v["per_core_hour"] for k, v in results["throughput"].items()}
+    if len(rates) == 2:
+        results["ratio_natural_to_balanced"] = rates["natural"] / rates["balanced"]
+        print(f"\nkept grasps per core-hour: natural {rates['natural']:,.0f}, balanced {rates['balanced']:,.0f}: "
+              f"ratio {results['ratio_natural_to_balanced']:.2f}", flush=True)
+    results.update(baseline=baseline(args.baseline_object, args.baseline_n, settings["natural"]),
+                   goal_per_core_hour=GOAL_PER_CORE_HOUR, platform=platform.platform())
     args.out.write_text(json.dumps(results, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0

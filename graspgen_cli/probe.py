@@ -34,8 +34,11 @@ MeshRootOpt = Annotated[
 ]
 LabelsOpt = Annotated[
     str, typer.Option("--labels", help="flex: the ACRONYM files' own labels (object_in_gripper); sim: the same poses "
-                      "labelled by our simulator (acronym protocol; cached under run.cache_dir/labels).")
+                      "labelled by our simulator (acronym protocol, still held; cached under run.cache_dir/labels); "
+                      "firm: the same simulation's firm-hold label. A dataset folder: its sets' own label, or firm "
+                      "with firm.")
 ]
+LABELS = ("flex", "sim", "firm")
 PerObjectOpt = Annotated[
     int | None, typer.Option("--per-object", help="At most this many grasps per object (a fixed seeded sample).",
                              min=1)
@@ -47,8 +50,8 @@ def _sets(grasps: list[Path], mesh_root: Path | None, labels: str, per_object: i
     """The object-grasp sets of every ``--grasps`` path: dataset folders by their own labels, the rest as ACRONYM."""
     from graspgen.learn.sources import acronym_sets, dataset_sets
 
-    if labels not in ("flex", "sim"):
-        raise ValueError(f"--labels: {labels!r} is not one of flex, sim")
+    if labels not in LABELS:
+        raise ValueError(f"--labels: {labels!r} is not one of {', '.join(LABELS)}")
     if not grasps:
         raise ValueError("--grasps: give at least one ACRONYM file, folder of them, or dataset folder")
     cache = Path(load(PROJECT, None, None).run.cache_dir) / "labels"
@@ -57,10 +60,11 @@ def _sets(grasps: list[Path], mesh_root: Path | None, labels: str, per_object: i
         if not path.exists():
             raise ValueError(f"--grasps: {path}: no such file or folder")
         if _is_dataset(path):
-            sets += dataset_sets(path)
+            sets += dataset_sets(path, "firm" if labels == "firm" else None)
         else:
-            sets += acronym_sets([path], mesh_root=mesh_root, labels=labels, per_object=per_object, seed=seed,
-                                 cache_dir=cache, jobs=jobs)
+            sets += acronym_sets([path], mesh_root=mesh_root, labels="flex" if labels == "flex" else "sim",
+                                 per_object=per_object, seed=seed, cache_dir=cache, jobs=jobs,
+                                 sim_label="firm" if labels == "firm" else "held")
     if not sets:
         raise ValueError(f"--grasps: no grasps found in {', '.join(str(p) for p in grasps)}")
     return sets
@@ -203,11 +207,20 @@ def pick_cmd(
     scale: Annotated[
         float | None, typer.Option("--scale", help="Metres per mesh unit (default: detect mm/cm from the size).")
     ] = None,
+    density: Annotated[
+        float | None, typer.Option("--density", help="Object density of the rollouts, kg/m^3 (default: the model's "
+                                   "training physics, else 700).", min=0.0)
+    ] = None,
+    friction: Annotated[
+        float | None, typer.Option("--friction", help="Object friction of the rollouts (default: the model's "
+                                   "training physics, else 1.0).", min=0.0)
+    ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the candidates and the random pick.", min=0)] = 0,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Workers of the rollouts (0 = all cores).")] = 1,
 ) -> None:
     """Sample candidates on a mesh, score them with a model, and simulate the top K and K random ones (acronym
-    protocol, the model's gripper): their success rates, printed and written to --json."""
+    protocol, the model's gripper, at the physics the model was trained at unless --density / --friction): their
+    success rates (held and firm), printed and written to --json."""
     import numpy as np
 
     console = Console(stderr=True)
@@ -221,8 +234,11 @@ def pick_cmd(
         check_writable(json_path, "results file (--json)", file=True)
         if not mesh.is_file():
             raise ValueError(f"--mesh: {mesh}: no such file")
-        params = PickParams(candidates=candidates, top=top, scale=scale)
         model = load_model(model_path)
+        learned = model.physics
+        params = PickParams(candidates=candidates, top=top, scale=scale,
+                            density=density if density is not None else learned.get("density") or 700.0,
+                            friction=friction if friction is not None else learned.get("friction") or 1.0)
         result = pick(model, mesh, params, np.random.default_rng(seed))
         summary = simulate_pick(result, model.gripper, params, jobs=jobs,
                                 cache_dir=load(PROJECT, None, None).run.cache_dir)
@@ -231,6 +247,8 @@ def pick_cmd(
     summary.update(model=str(model_path), seed=seed)
     _write_json(console, json_path, summary)
     console.print(f"{summary['candidates']} candidates on {mesh.name}: top {summary['n_top']} by score "
-                  f"{100 * summary['top_success']:.0f}% success, {summary['n_random']} random "
-                  f"{100 * summary['random_success']:.0f}%", highlight=False)
+                  f"{100 * summary['top_success']:.0f}% success ({100 * summary['top_firm']:.0f}% firm), "
+                  f"{summary['n_random']} random {100 * summary['random_success']:.0f}% "
+                  f"({100 * summary['random_firm']:.0f}% firm); density {params.density:g} kg/m^3, friction "
+                  f"{params.friction:g}", highlight=False)
     print(json_path)

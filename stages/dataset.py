@@ -115,7 +115,8 @@ OBJECT_SETS = ("object_grasps", "placed_grasps")
 """Stages whose shards are published as they are, concatenated, one table each: ``object_grasps.parquet`` (the
 object-centric grasp sets, by object) and ``placed_grasps.parquet`` (those sets placed in the scenes, by scene)."""
 
-OBJECT_SET_META = ("tried", "positives", "negatives", "target_positives", "target_negatives", "reached")
+OBJECT_SET_META = ("tried", "positives", "negatives", "target_positives", "target_negatives", "reached", "selection",
+                   "label", "target_grasps", "positive_rate", "collisions_dropped", "friction")
 """Keys of an object-grasps task's manifest meta kept in ``object_grasps.parquet``'s metadata (under
 :data:`graspgen.io.dataset_table.META_KEY`, ``"tasks"``): how far each object's set got. Timings are left out: they
 would make the bytes differ between runs."""

@@ -84,8 +84,12 @@ def shortfall(name: str, meta: dict[str, Any]) -> str | None:
     :func:`graspgen.workflows.object_grasps.label_object_grasps`."""
     if meta["reached"]:
         return None
-    counts = (f"object {name!r}: {meta['positives']} of {meta['target_positives']} positives, "
-              f"{meta['negatives']} of {meta['target_negatives']} negatives")
+    if meta.get("selection") == "natural":
+        counts = (f"object {name!r}: {meta['positives'] + meta['negatives']} of {meta['target_grasps']} "
+                  "collision-free grasps")
+    else:
+        counts = (f"object {name!r}: {meta['positives']} of {meta['target_positives']} positives, "
+                  f"{meta['negatives']} of {meta['target_negatives']} negatives")
     if meta["stopped"] == "no_candidates":
         return (f"{counts} after {meta['tried']} candidates: the sampler found no more antipodal pairs the gripper "
                 "opens around (object_grasps.sampler, object_grasps.gripper)")

@@ -1,7 +1,8 @@
 """Stage ``probe``: can a network learn these labels? A small grasp evaluator trained on the object-centric sets.
 
 One task (``probe``) reads what the dataset publishes of the object-centric sets: every object's mesh (``objects``)
-and its labelled grasps (``object_grasps``: TCP pose in the object frame, width, ``success``). It splits the objects
+and its labelled grasps (``object_grasps``: TCP pose in the object frame, width, and the set's label: ``firm`` or
+``success``). It splits the objects
 by a hash of their name (:func:`graspgen.learn.sources.split_by_object`: ``valid_fraction``, ``salt``), trains
 :class:`graspgen.learn.model.PointNetEvaluator` on the training objects and scores the held-out ones, beside three
 baselines (base rate, per-object rate, gradient-boosted trees): :func:`graspgen.learn.probe.run_probe`. The shard
@@ -37,7 +38,7 @@ from graspgen.io.objects import read_object
 from graspgen.io.probe_files import clean_report, write_probe_shard
 from graspgen.learn import require_torch
 from graspgen.learn.features import FeatureParams
-from graspgen.learn.sources import ObjectGraspSet, held_out
+from graspgen.learn.sources import ObjectGraspSet, held_out, label_column, record_physics
 from graspgen.validation import check, check_int, check_number
 from pipeline.errors import ConfigError
 from pipeline.stage import RunContext, Task, Upstream
@@ -99,9 +100,11 @@ class ProbeParams:
 
 def object_set(name: str, upstream: Upstream) -> ObjectGraspSet:
     """The object-centric set of ``name`` from its ``objects`` and ``object_grasps`` shards (split group: its name,
-    as for a published dataset)."""
+    as for a published dataset), labelled by the set's own label (``object_grasps.label``: ``firm`` or ``held``)."""
     record = read_object(upstream.path("objects", name))
-    table = pq.read_table(upstream.path("object_grasps", name), columns=["pose_object", "width", "success", "gripper"])
+    meta = upstream.meta("object_grasps", name)
+    column = label_column(meta.get("label"))
+    table = pq.read_table(upstream.path("object_grasps", name), columns=["pose_object", "width", column, "gripper"])
     n = len(table)
     poses = np.asarray(table.column("pose_object").to_pylist(), dtype=np.float64).reshape(n, 4, 4)
     grippers = sorted(set(table.column("gripper").to_pylist()))
@@ -112,9 +115,11 @@ def object_set(name: str, upstream: Upstream) -> ObjectGraspSet:
         faces=np.asarray(record.faces, dtype=np.int64),
         T_tcp=poses,
         width=table.column("width").to_numpy().astype(np.float64),
-        label=table.column("success").to_numpy(zero_copy_only=False).astype(bool),
+        label=table.column(column).to_numpy(zero_copy_only=False).astype(bool),
         gripper=grippers[0] if grippers else "",
         source="dataset",
+        physics=record_physics(record, meta.get("label") or "held", meta.get("protocol", "acronym"),
+                               meta.get("friction")),
     )
 
 

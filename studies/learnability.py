@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from graspgen.learn.features import FeatureParams
-from graspgen.learn.sources import ObjectGraspSet, acronym_sets, split_by_object
+from graspgen.learn.sources import ObjectGraspSet, acronym_sets, label_column, split_by_object
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_LEARN = Path(os.environ.get("GRASPGEN_LEARN", HERE.parent.parent / "shared" / "learn" / "acronym"))
@@ -89,8 +89,9 @@ def write_manifest(files: list[Path], path: Path) -> int:
     return len(rows)
 
 
-def run_sets(run: Path) -> list[ObjectGraspSet]:
-    """Object-centric sets from a run folder's shards (``objects`` and ``object_grasps``): (c)."""
+def run_sets(run: Path, label: str | None = None) -> list[ObjectGraspSet]:
+    """Object-centric sets from a run folder's shards (``objects`` and ``object_grasps``): (c). ``label``: ``held``
+    or ``firm``; None: each set's own (``object_grasps.label``)."""
     import pyarrow.parquet as pq
 
     from graspgen.io.objects import read_object
@@ -101,9 +102,13 @@ def run_sets(run: Path) -> list[ObjectGraspSet]:
         return {r["task"]: run / "shards" / stage / r["file"] for r in rows if r.get("status", "ok") == "ok"}
 
     objects, grasp_files = manifest("objects"), manifest("object_grasps")
+    labels = {r["task"]: (r.get("meta") or {}).get("label") for r in
+              (json.loads(line) for line in (run / "shards" / "object_grasps" / "manifest.jsonl").read_text()
+               .splitlines() if line.strip())}
     sets = []
     for name in sorted(grasp_files):
-        table = pq.read_table(grasp_files[name], columns=["object_name", "gripper", "pose_object", "width", "success"])
+        column = label_column(label or labels.get(name))
+        table = pq.read_table(grasp_files[name], columns=["object_name", "gripper", "pose_object", "width", column])
         if table.num_rows == 0 or name not in objects:
             continue
         record = read_object(objects[name])
@@ -112,7 +117,7 @@ def run_sets(run: Path) -> list[ObjectGraspSet]:
             name=name, group=_group(Path(name + ".h5")), vertices=np.asarray(record.vertices, np.float64),
             faces=np.asarray(record.faces, np.int64), T_tcp=poses,
             width=table.column("width").to_numpy().astype(np.float64),
-            label=table.column("success").to_numpy(zero_copy_only=False).astype(bool),
+            label=table.column(column).to_numpy(zero_copy_only=False).astype(bool),
             gripper=table.column("gripper")[0].as_py(), source="ours"))
     return sets
 
@@ -191,10 +196,11 @@ def pick_on_valid(model, files: list[Path], candidates: int, seed: int, jobs: in
         params = PickParams(candidates=candidates, top=10, scale=scale, friction=friction, density=density)
         rng = np.random.default_rng([seed, int(hashlib.sha256(f.stem.encode()).hexdigest()[:8], 16)])
         out = simulate_pick(pick(model, mesh, params, rng), model.gripper, params, jobs=jobs)
-        rows.append({"name": f.stem, **{k: out[k] for k in ("top_success", "random_success", "n_top", "n_random",
-                                                              "candidates")}})
-        print(f"  {f.stem[:48]:<48} top {out['top_success']:.2f}  random {out['random_success']:.2f}  "
-              f"({out['candidates']} candidates)", flush=True)
+        rows.append({"name": f.stem, **{k: out[k] for k in ("top_success", "random_success", "top_firm",
+                                                              "random_firm", "n_top", "n_random", "candidates")}})
+        print(f"  {f.stem[:48]:<48} top {out['top_success']:.2f} (firm {out['top_firm']:.2f})  random "
+              f"{out['random_success']:.2f} (firm {out['random_firm']:.2f})  ({out['candidates']} candidates)",
+              flush=True)
     return rows
 
 
@@ -213,7 +219,9 @@ def main() -> None:
     ap.add_argument("--learn", type=Path, default=DEFAULT_LEARN, help="folder of ACRONYM files (../shared/learn)")
     ap.add_argument("--per-object", type=int, default=500, help="grasps per file, a fixed seeded sample")
     ap.add_argument("-j", "--jobs", type=int, default=1, help="worker processes for the sim labels")
-    ap.add_argument("--ours", type=Path, default=None, help="run folder of `gen run object_grasps` for (c)")
+    ap.add_argument("--ours", action="append", default=[], metavar="RUN[:LABEL]",
+                    help="run folder of `gen run object_grasps` for (c), optionally with the label to read (held, "
+                         "firm; default: the sets' own); repeat for several (c) rows")
     ap.add_argument("--write-manifest", type=Path, default=None,
                     help="write the objects manifest of the training files for (c) and stop")
     ap.add_argument("--curve", action="store_true", help="also the learning curve of source (b)")
@@ -238,17 +246,21 @@ def main() -> None:
     flex_train, flex_valid = split_by_object(flex, VALID_FRACTION, SALT)
     sim_train, sim_valid = split_by_object(sim, VALID_FRACTION, SALT)
     firm_train, firm_valid = split_by_object(firm, VALID_FRACTION, SALT)
-    ours = run_sets(args.ours) if args.ours else []
-    leaked = {s.group for s in ours} & {s.group for s in flex_valid}
-    if leaked:
-        raise SystemExit(f"--ours holds validation meshes {sorted(leaked)}: make it with --write-manifest")
+    ours: dict[str, list] = {}
+    for spec in args.ours:
+        run, _, label = spec.partition(":")
+        key = "c_" + Path(run).name + (f":{label}" if label else "")
+        ours[key] = run_sets(Path(run), label or None)
+        leaked = {s.group for s in ours[key]} & {s.group for s in flex_valid}
+        if leaked:
+            raise SystemExit(f"--ours {spec} holds validation meshes {sorted(leaked)}: make it with --write-manifest")
     print(f"split by mesh: {len({s.group for s in flex_train})} training meshes ({len(flex_train)} files), "
           f"{len({s.group for s in flex_valid})} validation meshes ({len(flex_valid)} files); "
           f"{sum(len(s.label) for s in flex_train)} / {sum(len(s.label) for s in flex_valid)} grasps; "
           f"labels read/simulated in {label_seconds:.0f} s")
     valid = {"flex": flex_valid, "sim": sim_valid, "firm": firm_valid}
     models: dict = {}
-    table = cross_source({"a_flex": flex_train, "b_sim": sim_train, "b_firm": firm_train, "c_ours": ours}, valid,
+    table = cross_source({"a_flex": flex_train, "b_sim": sim_train, "b_firm": firm_train, **ours}, valid,
                          args.seed, models)
     _print_table(table)
     result = {"learn": str(args.learn), "per_object": args.per_object, "excluded": args.exclude,
@@ -256,13 +268,13 @@ def main() -> None:
               "valid_objects": sorted(s.name for s in flex_valid), "cross_source": table,
               "label_seconds": label_seconds, "platform": platform.platform(), "cpus": os.cpu_count()}
     if args.pick:
-        source = "c_ours" if "c_ours" in models else "b_sim"
+        source = next(iter(ours), "b_sim")
         print(f"\npick on the validation meshes, network {source}: top 10 of {args.pick} candidates vs 10 random")
         valid_files = [f for f in files if _is_valid(_group(f))]
         rows = pick_on_valid(models[source], valid_files, args.pick, args.seed, args.jobs)
         result["pick"] = {"network": source, "candidates": args.pick, "objects": rows,
-                          "top_success": float(np.mean([r["top_success"] for r in rows])),
-                          "random_success": float(np.mean([r["random_success"] for r in rows]))}
+                          **{k: float(np.mean([r[k] for r in rows])) for k in ("top_success", "random_success",
+                                                                                "top_firm", "random_firm")}}
         print(f"  mean: top {result['pick']['top_success']:.3f}, random {result['pick']['random_success']:.3f}")
     if args.curve:
         print("\nlearning curve, trained on (b) sim labels:")

@@ -61,7 +61,9 @@ def learnability(root: Path, files: Mapping[str, Any], config: Mapping[str, Any]
             report = json.loads(path.read_text())
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(f"{path}: cannot read the probe's report ({exc})") from None
-        return {"status": "run", "report": report, "model": MODEL if MODEL in files else None}
+        sets = config.get("object_grasps")
+        label = sets.get("label") if isinstance(sets, Mapping) else None
+        return {"status": "run", "report": report, "model": MODEL if MODEL in files else None, "label": label}
     section = config.get("probe")
     if not isinstance(section, Mapping):
         reason = "this pipeline has no probe stage"
@@ -100,10 +102,12 @@ def learnability_lines(section: Mapping[str, Any] | None) -> list[str]:
         f"A small PointNet grasp evaluator (`graspgen.learn`) trained for {train.get('epochs', '-')} epochs on the "
         f"object-centric sets of {len(split.get('train_objects', []))} objects ({split.get('train_grasps', '-')} "
         f"grasps) and scored on {len(split.get('valid_objects', []))} held-out object(s) "
-        f"({split.get('valid_grasps', '-')} grasps, base rate {_pct(net.get('base_rate'))} successes): can a network "
+        f"({split.get('valid_grasps', '-')} grasps, base rate {_pct(net.get('base_rate'))} positives): can a network "
         "tell from the object's shape around the jaws which grasps hold? Objects are split by a hash of their name "
         f"(valid fraction {split.get('valid_fraction', '-')}, salt `{split.get('salt', '')}`), so no held-out "
         "object was seen in training."
+        + (f" It learned the sets' `{section['label']}` label (`object_grasps.label`)." if section.get("label")
+           else "")
         + (f" The model is `{section['model']}` (`gen probe eval --model` scores other grasps with it)."
            if section.get("model") else ""),
         "",

@@ -32,7 +32,7 @@ from graspgen.io.card_labels import (
     binned_counts,
     count_quantiles,
 )
-from graspgen.io.card_tally import CardTable, GraspTally, ObjectSetTally, PlacedTally, row_groups
+from graspgen.io.card_tally import OBJECT_SET_COUNTS, CardTable, GraspTally, ObjectSetTally, PlacedTally, row_groups
 from graspgen.io.dataset_table import META_KEY, OUTCOME_NAMES, float_values
 from graspgen.validation import check_bool, check_int
 
@@ -323,22 +323,30 @@ def _object_set_objects(path: Path) -> dict[str, Any]:
     """Per object of ``object_grasps.parquet``: its kept grasps and how far its set got (the file's metadata)."""
     meta = json.loads((pq.read_schema(path).metadata or {}).get(META_KEY, b"{}")).get("tasks", {})
     sets = ObjectSetTally()
-    for group in row_groups(path, ["object_name", "candidate", "success"]):
+    for group in row_groups(path, ["object_name", "candidate", "outcome", "success", "firm"]):
         sets.add(group)
     objects = {}
     for name in sorted(set(sets.objects) | set(meta)):
-        grasps, positives, near, near_ok = (int(v) for v in sets.objects.get(name, np.zeros(4, np.int64)))
+        counts = dict(zip(OBJECT_SET_COUNTS, (int(v) for v in sets.objects.get(
+            name, np.zeros(len(OBJECT_SET_COUNTS), np.int64)))))
         m = meta.get(name, {})
+        label = m.get("label") or "held"
+        positives = counts["firm"] if label == "firm" else counts["held"]
         objects[name] = {
-            "grasps": grasps,
+            "grasps": counts["grasps"],
+            "label": label,
+            "selection": m.get("selection") or "balanced",
             "positives": positives,
-            "negatives": grasps - positives,
+            "negatives": counts["grasps"] - positives,
+            "target_grasps": m.get("target_grasps"),
             "target_positives": m.get("target_positives"),
             "target_negatives": m.get("target_negatives"),
             "tried": m.get("tried"),
             "reached": m.get("reached"),
-            "near_miss": near,
-            "near_miss_success_rate": _rate(near_ok, near),
+            "collisions_dropped": m.get("collisions_dropped"),
+            "outcome_mix": {k: counts[k] for k in ("collision", "no_contact", "slipped", "held_not_firm", "firm")},
+            "near_miss": counts["near_miss"],
+            "near_miss_success_rate": _rate(counts["near_miss_held"], counts["near_miss"]),
         }
     return objects
 

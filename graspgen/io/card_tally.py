@@ -26,7 +26,7 @@ from graspgen.errors import NotFoundError
 from graspgen.io.card_labels import EXACT_ROWS, SAMPLE_ROWS, LabelTally, row_hash
 from graspgen.io.dataset_table import OUTCOME_NAMES, float_values
 
-__all__ = ["CardTable", "GraspTally", "ObjectSetTally", "PlacedTally", "row_groups"]
+__all__ = ["OBJECT_SET_COUNTS", "CardTable", "GraspTally", "ObjectSetTally", "PlacedTally", "row_groups"]
 
 CODES = len(OUTCOME_NAMES)
 
@@ -198,24 +198,33 @@ class CardTable:
         return pa.concat_tables(parts).take(pa.array(np.searchsorted(local, rows)))
 
 
+OBJECT_SET_COUNTS = ("grasps", "held", "firm", "near_miss", "near_miss_held", "collision", "no_contact", "slipped",
+                     "held_not_firm")
+"""Per-object counts of :class:`ObjectSetTally`, in order: kept grasps, held (outcome 5), firm, near misses and
+the held ones among them, and the outcome mix (collisions at placement: outcomes 0-2; 3; 4; held but not firm)."""
+
+
 class ObjectSetTally:
-    """Running counts of ``object_grasps.parquet``: per object grasps, positives, near misses and their successes."""
+    """Running counts of ``object_grasps.parquet`` per object (:data:`OBJECT_SET_COUNTS`)."""
 
     def __init__(self) -> None:
         self.objects: dict[str, np.ndarray] = {}
-        """Per object: (4,) int64 grasps, positives, near misses, near misses that succeeded."""
+        """Per object: (9,) int64 counts, :data:`OBJECT_SET_COUNTS`."""
 
     def add(self, t: pa.Table) -> None:
-        """One row group (columns object_name, candidate, success)."""
+        """One row group (columns object_name, candidate, outcome, success, firm)."""
         names, idx = _codes(t.column("object_name"))
-        ok = t.column("success").to_numpy(zero_copy_only=False).astype(bool)
+        held = t.column("success").to_numpy(zero_copy_only=False).astype(bool)
+        firm = t.column("firm").to_numpy(zero_copy_only=False).astype(bool)
+        code = t.column("outcome").to_numpy(zero_copy_only=False).astype(np.int64)
         near = pc.fill_null(pc.equal(t.column("candidate"), "near_miss"), False).to_numpy(zero_copy_only=False)
-        per = np.stack([np.bincount(idx, weights=w, minlength=len(names)) for w in
-                        (np.ones(len(idx)), ok, near, near & ok)], axis=1).astype(np.int64)
+        weights = (np.ones(len(idx)), held, firm, near, near & held, code <= 2, code == 3, code == 4, held & ~firm)
+        per = np.stack([np.bincount(idx, weights=w, minlength=len(names)) for w in weights], axis=1).astype(np.int64)
         _add_counts(self.objects, names, per)
 
     def merge(self, other: ObjectSetTally) -> None:
-        _add_counts(self.objects, list(other.objects), np.asarray(list(other.objects.values())).reshape(-1, 4))
+        _add_counts(self.objects, list(other.objects),
+                    np.asarray(list(other.objects.values())).reshape(-1, len(OBJECT_SET_COUNTS)))
 
 
 PLACED_COUNTS = ("grasps", "free", "support_collisions", "clutter_collisions", "positives", "checked", "changed",

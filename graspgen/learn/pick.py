@@ -169,7 +169,8 @@ def simulate_pick(result: Pick, gripper: str, params: PickParams, *, jobs: int =
     Returns
     -------
     dict
-        ``top_success``, ``random_success`` (fractions), ``n_top``, ``n_random``, ``top_outcomes``,
+        ``top_success``, ``random_success`` (fractions held), ``top_firm``, ``random_firm`` (fractions held
+        firmly), ``density``, ``friction`` (of the rollouts), ``n_top``, ``n_random``, ``top_outcomes``,
         ``random_outcomes`` (outcome codes, in the groups' order), ``candidates``, ``mesh``, ``scale``, ``gripper``,
         ``top_scores``, ``random_scores``.
     """
@@ -184,11 +185,16 @@ def simulate_pick(result: Pick, gripper: str, params: PickParams, *, jobs: int =
                                            max_extent=params.max_extent),
                             protocol="acronym", jobs=jobs, cache_dir=cache_dir)
     outcome = table.column("outcome").to_numpy().astype(int)
+    firm = table.column("firm").to_numpy(zero_copy_only=False).astype(bool)
     k = len(result.top)
     top, random = outcome[:k], outcome[k:]
     return {
         "top_success": float(np.mean(top == Outcome.SUCCESS)),
         "random_success": float(np.mean(random == Outcome.SUCCESS)),
+        "top_firm": float(np.mean(firm[:k])),
+        "random_firm": float(np.mean(firm[k:])),
+        "density": params.density,
+        "friction": params.friction,
         "n_top": int(k),
         "n_random": int(len(random)),
         "top_outcomes": top.tolist(),

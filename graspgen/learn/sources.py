@@ -42,6 +42,9 @@ class ObjectGraspSet:
     """Gripper name, e.g. ``panda``."""
     source: str
     """``flex``, ``sim`` or ``dataset``."""
+    physics: dict | None = None
+    """What the labels were made at: ``label`` (``flex``, ``held`` or ``firm``), ``protocol``, ``friction``,
+    ``density`` (kg/m^3) and ``mass`` (kg; either may be None); None when unknown."""
 
 
 def _hash_fraction(text: str) -> float:
@@ -101,7 +104,9 @@ _PHYSICS_CODE = ("graspgen/workflows", "graspgen/sim", "graspgen/geometry", "gra
 
 
 def _physics_digest() -> str:
-    """sha256 of the physics code and gripper assets (:data:`_PHYSICS_CODE`) and MuJoCo's version."""
+    """sha256 of the physics code and gripper assets (:data:`_PHYSICS_CODE`) and MuJoCo's version. A Python file
+    enters as its syntax tree without docstrings (:func:`code_digest_text`): comments, docstrings and layout do not
+    change labels, so editing them keeps the cache."""
     import mujoco
 
     root = Path(__file__).resolve().parents[2]
@@ -110,15 +115,45 @@ def _physics_digest() -> str:
         top = root / rel
         for f in sorted(top.rglob("*")) if top.is_dir() else [top]:
             if f.is_file() and f.suffix in (".py", ".yaml", ".obj", ".stl") and "__pycache__" not in f.parts:
-                h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes())
+                data = code_digest_text(f.read_bytes()) if f.suffix == ".py" else f.read_bytes()
+                h.update(f.relative_to(root).as_posix().encode() + b"\0" + data)
     return h.hexdigest()
+
+
+def code_digest_text(source: bytes) -> bytes:
+    """What of a Python source enters :func:`_physics_digest`: ``ast.dump`` of its syntax tree without its bare
+    string statements (docstrings, attribute docstrings: no-ops when run), comments, layout or line numbers; the
+    source itself when it does not parse."""
+    import ast
+
+    try:
+        tree = ast.parse(source)
+    except SyntaxError:
+        return source
+    def text(stmt: ast.stmt) -> bool:
+        return isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) and isinstance(stmt.value.value, str)
+
+    for node in list(ast.walk(tree)):
+        for field in ("body", "orelse", "finalbody"):
+            body = getattr(node, field, None)
+            if isinstance(body, list) and any(isinstance(s, ast.stmt) and text(s) for s in body):
+                setattr(node, field, [s for s in body if not text(s)] or [ast.Pass()])
+    return ast.dump(tree, include_attributes=False).encode()
 
 
 def _sim_labels(mesh_path: Path, acr, T: np.ndarray, gripper: str, protocol: str, cache_dir: Path,
                 jobs: int, sim_label: str) -> np.ndarray:
-    """Our simulator's labels of the poses (``held``: outcome 5; ``firm``: held and still in place), cached by
-    content under ``cache_dir`` (npz): mesh bytes, scale, poses, gripper, protocol, the evaluate settings, the
-    physics code and MuJoCo's version (:func:`_physics_digest`), so an edited simulator never reuses old labels."""
+    """Our simulator's labels of the poses (``held``: outcome 5; ``firm``: held and still in place)."""
+    outcome, firm = sim_outcomes(mesh_path, acr, T, gripper, protocol, cache_dir, jobs)
+    return firm if sim_label == "firm" else outcome == SUCCESS
+
+
+def sim_outcomes(mesh_path: Path, acr, T: np.ndarray, gripper: str, protocol: str, cache_dir: Path,
+                 jobs: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Our simulator's outcome codes ``(m,) int8`` and firm labels ``(m,) bool`` of the poses ``T (m, 4, 4)`` of
+    an ACRONYM file ``acr`` (its mass, friction, density and scale), cached by content under ``cache_dir`` (npz):
+    mesh bytes, scale, poses, gripper, protocol, the evaluate settings, the physics code and MuJoCo's version
+    (:func:`_physics_digest`), so an edited simulator never reuses old labels."""
     from graspgen.workflows.evaluate import evaluate_grasps
     from graspgen.workflows.evaluate_settings import EvaluateParams
 
@@ -137,7 +172,7 @@ def _sim_labels(mesh_path: Path, acr, T: np.ndarray, gripper: str, protocol: str
         with atomic_path(path) as tmp, open(tmp, "wb") as f:
             np.savez(f, outcome=outcome, firm=firm)
     with np.load(path) as z:
-        return z["firm"].astype(bool) if sim_label == "firm" else z["outcome"] == SUCCESS
+        return z["outcome"].astype(np.int8), z["firm"].astype(bool)
 
 
 def acronym_sets(paths, *, mesh_root=None, labels: str = "flex", per_object: int | None = None, seed: int = 0,
@@ -182,19 +217,44 @@ def acronym_sets(paths, *, mesh_root=None, labels: str = "flex", per_object: int
             label = np.asarray(acr.success)[idx] == 1
         else:
             label = _sim_labels(mesh_path, acr, T, gripper.name, protocol, cache, jobs, sim_label)
+        physics = {"label": "flex" if labels == "flex" else sim_label, "protocol": protocol,
+                   "friction": acr.object_friction or 1.0, "density": acr.object_density, "mass": acr.object_mass}
         sets.append(ObjectGraspSet(
             name=path.stem, group=path.stem.rsplit("_", 1)[0],
             vertices=np.asarray(mesh.vertices, dtype=np.float64), faces=np.asarray(mesh.faces, dtype=np.int64),
-            T_tcp=T, width=_widths(mesh, T, gripper), label=label, gripper=gripper.name, source=labels))
+            T_tcp=T, width=_widths(mesh, T, gripper), label=label, gripper=gripper.name, source=labels,
+            physics=physics))
     return sets
 
 
-def dataset_sets(folder) -> list[ObjectGraspSet]:
+def record_physics(record, label: str, protocol: str, friction: float | None = None) -> dict:
+    """:attr:`ObjectGraspSet.physics` of a set made on an object record: its mass and density (mass over the mesh's
+    volume, when the mesh is a volume), its friction (``attrs["friction"]``, else ``friction``, else 1.0)."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(np.asarray(record.vertices, np.float64), np.asarray(record.faces), process=False)
+    density = float(record.mass) / float(mesh.volume) if mesh.is_volume and mesh.volume > 0 else None
+    own = (record.attrs or {}).get("friction")
+    return {"label": label, "protocol": protocol, "mass": float(record.mass), "density": density,
+            "friction": float(own if own is not None else friction if friction is not None else 1.0)}
+
+
+def label_column(label: str | None) -> str:
+    """The object grasp table's column of a set label: ``firm`` -> ``firm``; ``held`` or None (sets made before
+    the label was recorded) -> ``success``."""
+    if label not in (None, "held", "firm"):
+        raise InputError(f"label: {label!r} is not one of held, firm")
+    return "firm" if label == "firm" else "success"
+
+
+def dataset_sets(folder, label: str | None = None) -> list[ObjectGraspSet]:
     """One set per object of a dataset folder (or the run folder above it): ``object_grasps.parquet`` (columns
-    ``object_name``, ``pose_object``, ``width``, ``success``, ``gripper``) and ``objects/<name>.h5``; group = the
-    object's name."""
+    ``object_name``, ``pose_object``, ``width``, ``success``, ``firm``, ``gripper``) and ``objects/<name>.h5``;
+    group = the object's name. ``label``: ``held`` or ``firm``; None: each set's own (``object_grasps.label``, in
+    the table's metadata)."""
     import pyarrow.parquet as pq
 
+    from graspgen.io.dataset_table import META_KEY
     from graspgen.io.objects import read_object
 
     root = Path(folder)
@@ -203,12 +263,15 @@ def dataset_sets(folder) -> list[ObjectGraspSet]:
     table_path = root / "object_grasps.parquet"
     if not table_path.is_file():
         raise InputError(f"{folder}: no object_grasps.parquet")
-    t = pq.read_table(table_path, columns=["object_name", "pose_object", "width", "success", "gripper"])
+    t = pq.read_table(table_path, columns=["object_name", "pose_object", "width", "success", "firm", "gripper",
+                                           "protocol"])
+    tasks = json.loads((t.schema.metadata or {}).get(META_KEY, b"{}")).get("tasks", {})
     names = np.asarray(t.column("object_name").to_pylist())
     poses = np.asarray(t.column("pose_object").to_pylist(), dtype=np.float64).reshape(-1, 4, 4)
     width = t.column("width").to_numpy().astype(np.float64)
-    success = np.asarray(t.column("success").to_pylist(), dtype=bool)
+    columns = {c: np.asarray(t.column(c).to_pylist(), dtype=bool) for c in ("success", "firm")}
     grippers = np.asarray(t.column("gripper").to_pylist())
+    protocols = np.asarray(t.column("protocol").to_pylist())
     sets = []
     for name in sorted(set(names.tolist())):
         rows = names == name
@@ -216,8 +279,10 @@ def dataset_sets(folder) -> list[ObjectGraspSet]:
         if not obj_path.is_file():
             raise InputError(f"{obj_path}: missing (object {name!r} of {table_path})")
         rec = read_object(obj_path)
+        own = label or tasks.get(name, {}).get("label") or "held"
         sets.append(ObjectGraspSet(
             name=name, group=name, vertices=np.asarray(rec.vertices, dtype=np.float64),
             faces=np.asarray(rec.faces, dtype=np.int64), T_tcp=poses[rows], width=width[rows],
-            label=success[rows], gripper=str(grippers[rows][0]), source="dataset"))
+            label=columns[label_column(own)][rows], gripper=str(grippers[rows][0]), source="dataset",
+            physics=record_physics(rec, own, str(protocols[rows][0]), tasks.get(name, {}).get("friction"))))
     return sets

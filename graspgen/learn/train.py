@@ -122,6 +122,9 @@ class TrainedModel:
     """Gripper name the features were made for."""
     train_info: dict = dataclasses.field(default_factory=dict)
     """epochs, grasps, objects, seed, final loss; ``seconds`` / ``cpu_seconds`` (wall-clock, not saved)."""
+    physics: dict = dataclasses.field(default_factory=dict)
+    """What the training labels were made at (:func:`physics_summary`): ``label``, ``protocol``, ``friction``,
+    ``density`` (kg/m^3), ``mass`` (kg); a value is None where the sets disagree or did not say."""
 
     def score(self, sets, seed: int = 0) -> list[np.ndarray]:
         """(m,) float64 success probabilities per set (surface points from ``seed``)."""
@@ -198,7 +201,27 @@ def train_evaluator(sets, params: TrainParams, feature_params: FeatureParams | N
             "loss": losses, "valid_loss": valid_losses, "torch": torch.__version__,
             "featurize_seconds": feat_seconds, "seconds": time.perf_counter() - start,
             "cpu_seconds": time.process_time() - cpu}
-    return TrainedModel(module.eval(), feature_params, gripper, info)
+    return TrainedModel(module.eval(), feature_params, gripper, info, physics_summary(sets))
+
+
+PHYSICS_KEYS = ("label", "protocol", "friction", "density", "mass")
+"""Keys of :attr:`TrainedModel.physics`."""
+
+
+def physics_summary(sets) -> dict:
+    """The physics every set of ``sets`` shares (:attr:`ObjectGraspSet.physics`): per key its one value, the
+    median of a numeric key's values within 1 % of each other, else None."""
+    out: dict = {}
+    for key in PHYSICS_KEYS:
+        values = [(s.physics or {}).get(key) for s in sets]
+        if any(v is None for v in values) or not values:
+            out[key] = None
+        elif isinstance(values[0], str):
+            out[key] = values[0] if len(set(values)) == 1 else None
+        else:
+            v = np.asarray(values, dtype=np.float64)
+            out[key] = float(np.median(v)) if v.max() <= 1.01 * v.min() else None
+    return out
 
 
 _SAVED_INFO = ("epochs", "grasps", "objects", "seed", "loss")  # no wall-clock: the file must be reproducible
@@ -212,7 +235,7 @@ def save_model(model: TrainedModel, path) -> None:
 
     meta = {"format": MODEL_FORMAT, "feature_version": FEATURE_VERSION,
             "feature_params": dataclasses.asdict(model.feature_params), "gripper": model.gripper,
-            "length_scale": model.module.length_scale,
+            "length_scale": model.module.length_scale, "physics": model.physics,
             "train_info": {k: model.train_info[k] for k in _SAVED_INFO if k in model.train_info}}
     state = OrderedDict((k, v.detach().cpu().contiguous()) for k, v in model.module.state_dict().items())
     buf = io.BytesIO()
@@ -244,4 +267,4 @@ def load_model(path) -> TrainedModel:
     module = PointNetEvaluator(length_scale=meta["length_scale"])
     module.load_state_dict(blob["state"])
     return TrainedModel(module.eval(), FeatureParams(**meta["feature_params"]), meta["gripper"],
-                        dict(meta["train_info"]))
+                        dict(meta["train_info"]), dict(meta.get("physics") or {}))

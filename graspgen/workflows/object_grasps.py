@@ -1,8 +1,18 @@
 """Object-centric grasp sets, ACRONYM / GraspGen style: one object alone in free space, grasps from every side.
 
 :func:`label_object_grasps` takes one prepared object (an :class:`graspgen.io.objects.ObjectRecord`, mesh frame = the
-object frame) and labels grasps on it until it has ``target_positives`` successes and ``target_negatives`` failures,
-or has tried ``max_candidates``:
+object frame), rolls out grasp candidates on it in free space and keeps some of them, by ``selection``:
+
+* ``natural`` (default): antipodal candidates only, each kept whatever its outcome unless the open hand collides
+  with the object at placement (outcomes 0-2, counted and dropped), until ``target_grasps`` are kept or
+  ``max_candidates`` were tried. The set is the sampler's contact-making, collision-free distribution, labelled:
+  ACRONYM's convention, and the one a grasp evaluator meets when it scores a planner's candidates. Its positive
+  rate (``meta["positive_rate"]``) is the natural one; a balanced view is the trainer's business (the probe draws
+  balanced batches). Why: docs/decisions/2026-12-07-natural-object-sets.md.
+* ``balanced``: until ``target_positives`` positives and ``target_negatives`` failures are kept, as below.
+
+The ``balanced`` loop (steps 1-2 below describe it; ``natural`` uses step 1 without near misses and step 2's
+rollouts):
 
 1. **Candidates**, in batches of ``batch_size``. ``round(near_miss_fraction * batch_size)`` of each batch are near
    misses, the rest antipodal candidates; once ``target_positives`` successes are kept, only failures can still be
@@ -228,6 +238,8 @@ class _Search:
     """Candidates rolled out on the warp backend (whole batches: the kept ones and those past the stop)."""
 
     def done(self) -> bool:
+        if self.params.selection == "natural":
+            return len(self.kept) >= self.params.target_grasps
         return self.positives >= self.params.target_positives and self.negatives >= self.params.target_negatives
 
     def record(self, kind: str, T: np.ndarray, w: float, depth: float, result: RolloutResult) -> None:
@@ -237,6 +249,9 @@ class _Search:
         self.tried += 1
         self.counts[result.code] += 1
         self.by_kind[kind][result.code] += 1
+        if params.selection == "natural":
+            self._record_natural(kind, T, w, result)
+            return
         if params.positive(result):
             if kind == CANDIDATES[0]:
                 self.good_pose.append(T)
@@ -252,6 +267,17 @@ class _Search:
                 self.collisions += 1
             self.negatives += 1
             self.kept.append((kind, T, w, result))
+
+    def _record_natural(self, kind: str, T: np.ndarray, w: float, result: RolloutResult) -> None:
+        """``natural``: keep every rollout that does not collide at placement, whatever its outcome."""
+        if result.code <= Outcome.COLLISION_WITH_CLUTTER:
+            self.collisions += 1
+            return
+        if self.params.positive(result):
+            self.positives += 1
+        else:
+            self.negatives += 1
+        self.kept.append((kind, T, w, result))
 
 
 def _batch(search: _Search, pool: CandidatePool, n_near: int, gripper: GripperSpec, overhang: float, tilt: float,
@@ -280,11 +306,12 @@ def _search(search: _Search, simulator: LiftSimulator | WarpLiftSimulator, body:
     stop."""
     params = search.params
     n_near_late = round(params.near_miss_fraction_when_positives_met * params.batch_size)
+    natural = params.selection == "natural"
     while search.tried < params.max_candidates and not search.done():
         # Once the positives are in (and near misses of held grasps can be made), look for negatives where they are.
         late = search.positives >= params.target_positives and bool(search.good_pose)
-        batch = _batch(search, pool, n_near_late if late else params.near_misses_per_batch, gripper, overhang, tilt,
-                       rng)
+        n_near = 0 if natural else n_near_late if late else params.near_misses_per_batch
+        batch = _batch(search, pool, n_near, gripper, overhang, tilt, rng)
         if batch is None:
             search.stopped = "no_candidates"
             break
@@ -458,11 +485,16 @@ def _meta(name: str, params: ObjectGraspsParams, search: _Search, sampled: int, 
         "tried": search.tried,
         "positives": search.positives,
         "negatives": search.negatives,
-        "target_positives": params.target_positives,
-        "target_negatives": params.target_negatives,
+        "target_positives": params.target_positives if params.selection == "balanced" else None,
+        "target_negatives": params.target_negatives if params.selection == "balanced" else None,
         "max_candidates": params.max_candidates,
         "reached": search.stopped == "targets",
-        "collision_negatives": search.collisions,
+        "selection": params.selection,
+        "label": params.label,
+        "target_grasps": params.target_grasps if params.selection == "natural" else None,
+        "positive_rate": search.positives / len(search.kept) if search.kept else None,
+        "collision_negatives": search.collisions if params.selection == "balanced" else 0,
+        "collisions_dropped": search.collisions if params.selection == "natural" else 0,
         "stopped": search.stopped,
         "outcomes": {name: int(search.counts[c]) for c, name in enumerate(OUTCOME_NAMES)},
         "candidates": {k: int(v.sum()) for k, v in search.by_kind.items()},

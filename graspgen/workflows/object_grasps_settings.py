@@ -16,13 +16,17 @@ from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
 from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams, check_backend
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
 
-__all__ = ["LABELS", "PROTOCOLS", "ObjectGraspsParams", "default_overhang", "default_tilt", "protocol_opening"]
+__all__ = ["LABELS", "PROTOCOLS", "SELECTIONS", "ObjectGraspsParams", "default_overhang", "default_tilt",
+           "protocol_opening"]
 
 PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen")
 """The protocols an object-centric set may use: the free-space ones of :data:`graspgen.sim.protocols.PROTOCOLS`."""
 
 LABELS: tuple[str, ...] = ("held", "firm")
 """Values of :attr:`ObjectGraspsParams.label`: which label makes a positive."""
+
+SELECTIONS: tuple[str, ...] = ("natural", "balanced")
+"""Values of :attr:`ObjectGraspsParams.selection`: which rollouts a set keeps."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,29 +40,33 @@ class ObjectGraspsParams:
     protocol: str = "acronym"
     """Free-space protocol of the rollouts: ``acronym`` (placed open at the grasp, close, shake; ACRONYM's test) or
     ``graspgen`` (close, then five tugs at the object's weight; GraspDataGen's test). It sets ``lift.protocol``."""
+    selection: str = "natural"
+    """Which rollouts are kept. ``natural`` (default): every antipodal candidate that does not collide at placement
+    (outcomes 3-5), whatever its outcome, until ``target_grasps`` are kept: the sampler's own contact-making,
+    collision-free distribution with its natural success rate, as ACRONYM keeps its poses (no near misses; the
+    collisions are counted in the metadata, not kept). ``balanced``: ``target_positives`` positives and
+    ``target_negatives`` negatives, with near misses and at most ``collision_share`` collisions among the
+    negatives. Why natural: docs/decisions/2026-12-07-natural-object-sets.md."""
+    target_grasps: int = 800
+    """``natural``: collision-free rollouts to keep per object (the first ones in trial order)."""
     target_positives: int = 1000
-    """Successes to keep per object (the first ones in trial order)."""
+    """``balanced``: positives to keep per object (the first ones in trial order)."""
     target_negatives: int = 1000
-    """Failures (any outcome but success) to keep per object (the first ones in trial order)."""
+    """``balanced``: failures (not positive under ``label``) to keep per object (the first ones in trial order)."""
     max_candidates: int = 20000
     """Most rollouts per object; the loop stops here even when a target is not met (a warning says so)."""
     collision_share: float = 0.25
-    """Largest share of the kept negatives that may be collisions at placement (outcomes 0-2: the open hand
-    intersects the object where the grasp puts it). Those are the cheapest negatives and the least informative: the
-    hand never closed, and a plain collision check finds them without physics. Without a cap they fill the negatives
-    of hollow and long objects (93 % of the antipodal candidates on the calibration mug collide), leaving none of
-    the failures that teach a grasp model what does not hold (slips, closing on air). In [0, 1]; 1 keeps failures
-    as they come."""
+    """``balanced``: largest share of the kept negatives that may be collisions at placement (outcomes 0-2: the
+    open hand intersects the object where the grasp puts it), in [0, 1]; 1 keeps failures as they come. Why a cap:
+    collisions are the cheapest negatives and teach least (the hand never closed)."""
     batch_size: int = 128
     """Candidates sampled per batch (antipodal plus near misses, in a shuffled order)."""
     near_miss_fraction: float = 0.3
-    """Share of each batch that are near misses (``round(fraction * batch_size)``), in [0, 1)."""
+    """``balanced``: share of each batch that are near misses (``round(fraction * batch_size)``), in [0, 1)."""
     near_miss_fraction_when_positives_met: float = 0.8
-    """Share of each batch that are near misses once ``target_positives`` successes are kept (and some antipodal
-    candidate has held), in [0, 1). From then on only failures are kept, and they are where the near misses are:
-    on the calibration mug 12 % of near misses fail without a collision against 0.2 % of antipodal candidates, so a
-    batch of mostly near misses finds the negatives ~10x sooner instead of rolling out successes that are thrown
-    away (each a full closing and shake)."""
+    """``balanced``: share of each batch that are near misses once ``target_positives`` successes are kept (and
+    some antipodal candidate has held), in [0, 1): from then on only failures are kept, and they are where the near
+    misses are."""
     near_miss_overhang: float | None = None
     """Shifted near misses: how far (m) beyond the edge of the pad face the parent's contact point ends up, along
     the shift (the shift is the distance from the contact to the pad's edge in a random in-plane direction plus
@@ -86,13 +94,12 @@ class ObjectGraspsParams:
     TCP frame; the robustness stage's 5 degrees)."""
     epsilon: EpsilonParams = dataclasses.field(default_factory=EpsilonParams)
     """Contact model and friction of the epsilon (``epsilon.friction`` null: the object's friction)."""
-    label: str = "held"
-    """Which label makes a positive (a kept success, a near miss's parent, a robustness copy's win): ``held``
-    (default; outcome 5, the object still between the fingers after the disturbance: ACRONYM's
-    ``object_in_gripper``, so the set's positives are ACRONYM's and the ACRONYM export's ``object_in_gripper`` is
-    this) or ``firm`` (also the object's motion in the hand within ``lift.firm_translation`` / ``firm_rotation``;
-    a held-but-not-firm grasp is then kept as a negative). The other label is stored in every row either way
-    (``success``, ``firm``)."""
+    label: str = "firm"
+    """Which label makes a positive (a kept success, a near miss's parent, a robustness copy's win, what the probe
+    trains on): ``firm`` (default; outcome 5 and the object's motion in the hand within ``lift.firm_translation`` /
+    ``firm_rotation``: a held-but-not-firm grasp is a negative) or ``held`` (outcome 5, the object still between
+    the fingers after the disturbance: ACRONYM's ``object_in_gripper``). Both labels are stored in every row
+    (``firm``, ``success``); the ACRONYM export's ``object_in_gripper`` is ``success`` either way."""
     backend: str = dataclasses.field(default="mujoco", metadata={KEY_OMIT_DEFAULT: True})
     """Where the candidates are rolled out: ``mujoco`` (the CPU, one after another) or ``warp`` (MuJoCo Warp, each
     batch of ``batch_size`` candidates at once; needs ``pip install -e '.[warp]'``). The results are taken in the
@@ -108,6 +115,8 @@ class ObjectGraspsParams:
         load_gripper(self.gripper)  # unknown name: lists the bundled ones; bad file: names it and what is wrong
         check("protocol", self.protocol in PROTOCOLS,
               f"be one of {', '.join(PROTOCOLS)} (the free-space protocols; 'table' needs a support)", self.protocol)
+        check_choice("selection", self.selection, SELECTIONS)
+        object.__setattr__(self, "target_grasps", check_int("target_grasps", self.target_grasps, low=1))
         for key in ("target_positives", "target_negatives"):
             object.__setattr__(self, key, check_int(key, getattr(self, key), low=0))
         check("target_negatives", self.target_positives + self.target_negatives > 0,
@@ -147,6 +156,11 @@ class ObjectGraspsParams:
             object.__setattr__(self, key, check_number(key, getattr(self, key), low=0.0))
         check_instance("epsilon", self.epsilon, EpsilonParams)
         check_choice("label", self.label, LABELS)
+
+    @property
+    def label_column(self) -> str:
+        """The table column that holds this set's positives: ``firm`` or ``success`` (held)."""
+        return "firm" if self.label == "firm" else "success"
 
     def positive(self, result: RolloutResult) -> bool:
         """Whether ``result`` is a positive under :attr:`label` (``held``: outcome 5; ``firm``: ``result.firm``)."""

@@ -42,7 +42,8 @@ def files(tmp_path_factory):
         cands = sample_antipodal(mesh, panda, AntipodalParams(approach="any", num_surface_points=64), rng)
         pick = rng.choice(len(cands), size=60, replace=False)
         success = np.abs(cands.pose_object[pick, 2, 2]) > 0.7
-        write_acronym(root / f"{name}.h5", cands.pose_object[pick], success, object_file=f"{name}.obj")
+        write_acronym(root / f"{name}.h5", cands.pose_object[pick], success, object_file=f"{name}.obj",
+                      object_density=150.0, object_friction=0.8)
     return root
 
 
@@ -149,3 +150,11 @@ def test_pick_chooses_the_best_scored_and_a_seeded_random_group(files, tmp_path)
     assert data["top_success"] == np.mean(np.asarray(data["top_outcomes"]) == 5)
     assert data["random_success"] == np.mean(np.asarray(data["random_outcomes"]) == 5)
     assert data["top_scores"] == pytest.approx(got.scores[got.top].tolist())
+    # The rollouts run at the physics the model learned (the files' density and friction) unless told otherwise.
+    assert model.physics == {"label": "flex", "protocol": "acronym", "friction": 0.8, "density": 150.0, "mass": None}
+    assert (data["density"], data["friction"]) == (150.0, 0.8)
+    assert 0.0 <= data["top_firm"] <= data["top_success"] and "density 150" in result.output
+    result = invoke("probe", "pick", "--model", model_path, "--mesh", files / "Box_a_0.01.obj", "--candidates", 40,
+                    "--top", 3, "--seed", 3, "--density", 700, "--friction", 1.0, "--json", out)
+    assert result.exit_code == 0, result.output
+    assert (json.loads(out.read_text())["density"], json.loads(out.read_text())["friction"]) == (700.0, 1.0)

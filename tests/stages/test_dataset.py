@@ -262,8 +262,10 @@ def test_object_sets_are_the_stage_shards_one_after_the_other(run):
     got = pq.read_table(out / "dataset" / "object_grasps.parquet")
     for name, o in sets["objects"].items():
         rows = got.filter(pa.compute.equal(got.column("object_name"), name))
-        assert o["positives"] == sum(rows.column("success").to_pylist())
+        assert o["label"] == "firm" and o["selection"] == "natural"  # the defaults
+        assert o["positives"] == sum(rows.column("firm").to_pylist())
         assert o["positives"] + o["negatives"] == len(rows) and o["tried"] >= len(rows)
+        assert sum(o["outcome_mix"].values()) == len(rows) and o["outcome_mix"]["collision"] == 0
     placed = pq.read_table(out / "dataset" / "placed_grasps.parquet")
     assert sets["placed"]["grasps"] == len(placed)
     assert sets["placed"]["positives"] == sum(placed.column("success").to_pylist())

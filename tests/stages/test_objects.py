@@ -219,7 +219,7 @@ def test_run_prints_the_warnings_and_the_card_lists_them(tmp_path):
         "  cameras: {num_views: 1, width: 160, height: 120}\n"
         "grasps:\n  max_per_object: 8\n  sampler: {num_surface_points: 64}\n"
         "robustness:\n  num_perturbations: 3\n"
-        "object_grasps:\n  target_positives: 4\n  target_negatives: 2\n  max_candidates: 200\n  batch_size: 16\n"
+        "object_grasps:\n  target_grasps: 6\n  max_candidates: 200\n  batch_size: 16\n"
         "  sampler: {num_surface_points: 64}\n"
     )
     args = ["run", "--config", cfg, "--out", tmp_path / "out", "--jobs", 2,
@@ -231,7 +231,7 @@ def test_run_prints_the_warnings_and_the_card_lists_them(tmp_path):
         "names to objects.include to use them)",
         "objects: inside_out_box: inside_out_box.obj: mesh repaired: fixed face winding / orientation",
         "objects: mm_cylinder: mm_cylinder.obj: largest extent 90.0 units, assumed millimetres, scaled by 0.001",
-        "object_grasps: big_box: object 'big_box': 0 of 4 positives, 0 of 2 negatives after 0 candidates: the "
+        "object_grasps: big_box: object 'big_box': 0 of 6 collision-free grasps after 0 candidates: the "
         "sampler found no more antipodal pairs the gripper opens around (object_grasps.sampler, object_grasps.gripper)",
         f"grasps: scene_000000: gripper {GraspsParams().gripper} cannot grasp object 'big_box': it is 200 mm across "
         "at its "

@@ -102,20 +102,31 @@ def reference_stats(root, files):
         "objects": per_object, "scenes": scenes, "labels": labels,
     }
     sets = {}
-    t = pq.read_table(root / "object_grasps.parquet", columns=["object_name", "candidate", "success"])
+    t = pq.read_table(root / "object_grasps.parquet", columns=["object_name", "candidate", "outcome", "success",
+                                                                "firm"])
     meta = json.loads(pq.read_schema(root / "object_grasps.parquet").metadata[b"graspgen.dataset"])["tasks"]
     names = np.asarray(t.column("object_name").to_pylist(), dtype=object)
     kind = np.asarray(t.column("candidate").to_pylist(), dtype=object)
-    ok = t.column("success").to_numpy(zero_copy_only=False).astype(bool)
+    code = np.asarray(t.column("outcome").to_pylist())
+    ok = np.asarray(t.column("success").to_pylist(), dtype=bool)
+    firm = np.asarray(t.column("firm").to_pylist(), dtype=bool)
     sets["objects"] = {}
     for name in sorted(set(names) | set(meta)):
         sel = names == name
         m = meta.get(name, {})
         near = sel & (kind == "near_miss")
+        positive = firm if m.get("label") == "firm" else ok
         sets["objects"][name] = {
-            "grasps": int(sel.sum()), "positives": int((sel & ok).sum()), "negatives": int((sel & ~ok).sum()),
+            "grasps": int(sel.sum()), "label": m.get("label") or "held",
+            "selection": m.get("selection") or "balanced",
+            "positives": int((sel & positive).sum()), "negatives": int((sel & ~positive).sum()),
+            "target_grasps": m.get("target_grasps"),
             "target_positives": m.get("target_positives"), "target_negatives": m.get("target_negatives"),
-            "tried": m.get("tried"), "reached": m.get("reached"), "near_miss": int(near.sum()),
+            "tried": m.get("tried"), "reached": m.get("reached"), "collisions_dropped": m.get("collisions_dropped"),
+            "outcome_mix": {"collision": int((sel & (code <= 2)).sum()), "no_contact": int((sel & (code == 3)).sum()),
+                            "slipped": int((sel & (code == 4)).sum()), "held_not_firm": int((sel & ok & ~firm).sum()),
+                            "firm": int((sel & firm).sum())},
+            "near_miss": int(near.sum()),
             "near_miss_success_rate": _ref_rate(int((near & ok).sum()), int(near.sum())),
         }
     t = pq.read_table(root / "placed_grasps.parquet")
@@ -209,10 +220,12 @@ def scene_table(rng, sid, n, objects):
 
 
 def object_set(rng, name, n):
+    outcome = rng.integers(0, 6, n).astype(np.int8)
     return pa.table({
         "object_name": pa.array([name] * n), "grasp_id": pa.array(np.arange(n), pa.int32()),
         "candidate": pa.array([("near_miss", "antipodal")[i] for i in rng.integers(0, 2, n)]),
-        "success": pa.array(rng.random(n) < 0.4), "width": pa.array(rng.random(n)),
+        "outcome": pa.array(outcome), "success": pa.array(outcome == 5),
+        "firm": pa.array((outcome == 5) & (rng.random(n) < 0.6)), "width": pa.array(rng.random(n)),
     })
 
 
@@ -250,6 +263,8 @@ def dataset(tmp_path_factory):
         (root / "objects" / f"{name}.h5").write_bytes(b"")
         files[f"objects/{name}.h5"] = {}
     tasks = {name: {"tried": 100 + i, "reached": bool(i % 2), "target_positives": 50} for i, name in enumerate(OBJECTS)}
+    for name in OBJECTS[::2]:  # natural sets labelled firm beside balanced ones labelled held (older metadata)
+        tasks[name].update(selection="natural", label="firm", target_grasps=150, collisions_dropped=9)
     tasks["no_rows_object"] = {"tried": 7, "reached": False}
     meta = {b"graspgen.dataset": json.dumps({"tasks": tasks}).encode()}
     with GroupedParquetWriter(root / "object_grasps.parquet", row_group_rows=300, metadata=meta) as w:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -98,16 +99,25 @@ def test_dataset_sets_read_a_folder(tmp_path, monkeypatch):
     (root / "objects").mkdir(parents=True)
     poses = [np.eye(4).ravel().tolist()] * 3
     table = pa.table({"object_name": ["b", "a", "b"], "pose_object": poses, "width": [0.01, 0.02, 0.03],
-                      "success": [True, False, False], "gripper": ["panda"] * 3})
+                      "success": [True, False, True], "firm": [True, False, False], "gripper": ["panda"] * 3,
+                      "protocol": ["acronym"] * 3})
+    # b's set was made with the firm label; a's metadata predates the label (held)
+    tasks = {"tasks": {"b": {"label": "firm", "friction": 0.5}, "a": {}}}
+    table = table.replace_schema_metadata({b"graspgen.dataset": json.dumps(tasks).encode()})
     pq.write_table(table, root / "object_grasps.parquet")
     for n in ("a", "b"):
         (root / "objects" / f"{n}.h5").write_bytes(b"")
-    box = trimesh.creation.box()
-    rec = type("R", (), {"vertices": box.vertices, "faces": box.faces})
+    box = trimesh.creation.box()  # 1 m^3
+    rec = type("R", (), {"vertices": box.vertices, "faces": box.faces, "mass": 150.0, "attrs": {}})
     monkeypatch.setattr("graspgen.io.objects.read_object", lambda p: rec)
     a, b = sources.dataset_sets(tmp_path)
     assert (a.name, b.name) == ("a", "b") and b.width.tolist() == [0.01, 0.03] and b.label.tolist() == [True, False]
     assert a.group == "a" and a.source == "dataset"
+    assert b.physics == {"label": "firm", "protocol": "acronym", "mass": 150.0, "density": pytest.approx(150.0),
+                         "friction": 0.5}
+    assert a.physics["label"] == "held" and a.physics["friction"] == 1.0
+    _, held = sources.dataset_sets(tmp_path, "held")
+    assert held.label.tolist() == [True, True] and held.physics["label"] == "held"
     (root / "objects" / "a.h5").unlink()
     with pytest.raises(InputError, match="a.h5"):
         sources.dataset_sets(root)
@@ -126,3 +136,14 @@ def test_the_physics_digest_covers_code_that_exists_and_what_evaluates():
     for module in (evaluate, evaluation_world):
         path = Path(module.__file__).resolve()
         assert any(path == top or top in path.parents for top in covered), path
+
+
+def test_the_physics_digest_ignores_docstrings_and_comments_but_not_code():
+    before = b'"""Module."""\n\n\nclass P:\n    """Doc."""\n\n    force: float = 20.0\n    """N."""\n\n\n' \
+             b'def f(x):\n    """Doc."""\n    return x * 2  # why\n'
+    reworded = b'"""Another module text."""\n\nclass P:\n    force: float = 20.0\n    """Newtons, per pad."""\n\n' \
+               b'def f(x):\n    return x*2\n'
+    edited = before.replace(b"20.0", b"25.0")
+    assert sources.code_digest_text(before) == sources.code_digest_text(reworded)
+    assert sources.code_digest_text(before) != sources.code_digest_text(edited)
+    assert sources.code_digest_text(b"def (:") == b"def (:"  # not Python: the bytes themselves

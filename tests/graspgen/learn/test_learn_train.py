@@ -3,6 +3,7 @@ the missing-torch error, the probe's report."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 
 import numpy as np
@@ -68,13 +69,30 @@ def test_same_data_and_settings_give_the_same_bytes(tmp_path):
     assert path.read_bytes() == blobs[0]  # the file name does not enter the bytes
 
 
+def test_the_model_records_the_physics_its_sets_share():
+    from graspgen.learn.train import physics_summary
+
+    sets = _boxes(3, 4)
+    same = {"label": "firm", "protocol": "acronym", "friction": 1.0, "density": 150.0, "mass": None}
+    sets = [dataclasses.replace(s, physics={**same, "mass": 0.1 * (i + 1)}) for i, s in enumerate(sets)]
+    assert physics_summary(sets) == same  # masses differ by more than 1 %: None
+    near = [dataclasses.replace(s, physics={**same, "density": 150.0 * (1 + 0.005 * i)}) for i, s in enumerate(sets)]
+    assert physics_summary(near)["density"] == pytest.approx(150.75)  # within 1 %: the median
+    mixed = [dataclasses.replace(sets[0], physics={**same, "label": "held"}), *sets[1:]]
+    assert physics_summary(mixed)["label"] is None
+    assert physics_summary([dataclasses.replace(sets[0], physics=None)]) == dict.fromkeys(same)
+
+
 def test_load_model_round_trip_and_errors(tmp_path, monkeypatch):
     sets = _boxes(3, 12)
+    physics = {"label": "firm", "protocol": "acronym", "friction": 1.0, "density": 150.0, "mass": None}
+    sets = [dataclasses.replace(s, physics=physics) for s in sets]
     model = train_evaluator(sets, TrainParams(epochs=1, batch_size=8), SMALL)
     path = tmp_path / "m.pt"
     save_model(model, path)
     back = load_model(path)
     assert back.gripper == "panda" and back.feature_params == SMALL and back.train_info["epochs"] == 1
+    assert back.physics == model.physics == physics
     for a, b in zip(model.score(sets), back.score(sets)):
         assert np.array_equal(a, b)
     n_params = sum(p.numel() for p in model.module.parameters())

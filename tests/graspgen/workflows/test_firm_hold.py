@@ -155,11 +155,12 @@ def test_evaluate_writes_both_labels(tmp_path):
 
 
 def test_object_grasps_label_switch():
-    held = ObjectGraspsParams(target_positives=1, target_negatives=1)
-    firm = dataclasses.replace(held, label="firm")
+    firm = ObjectGraspsParams(target_positives=1, target_negatives=1)
+    held = dataclasses.replace(firm, label="held")
     swung = _roll(BAR, "acronym", y=BAR_OFFSET, grip_force=BAR_GRIP)
     steady = _roll(BOX, "acronym")
-    assert held.label == "held"  # the default keeps the set's positives ACRONYM's
+    assert firm.label == "firm" and firm.label_column == "firm"  # the default: firm holds are the positives
+    assert held.label_column == "success"  # ACRONYM's positives
     assert held.positive(swung) and held.positive(steady)
     assert not firm.positive(swung) and firm.positive(steady)
     with pytest.raises(SettingsError, match="label"):

@@ -51,8 +51,8 @@ def top_down(x: float, y: float, z: float) -> np.ndarray:
 
 
 def params(**kw) -> ObjectGraspsParams:
-    return ObjectGraspsParams(**{"target_positives": 1000, "target_negatives": 1000, "batch_size": 16,
-                                 "near_miss_fraction": 0.25, **kw})
+    return ObjectGraspsParams(**{"selection": "balanced", "label": "held", "target_positives": 1000,
+                                 "target_negatives": 1000, "batch_size": 16, "near_miss_fraction": 0.25, **kw})
 
 
 @pytest.fixture(scope="module")
@@ -230,10 +230,11 @@ def test_the_stage_runs_in_the_smoke_pipeline(tmp_path):
     for e in entries.values():
         table = pq.read_table(stage_dir(out, "object_grasps") / e.file)
         assert table.schema.equals(SCHEMA, check_metadata=False)
-        success = table.column("success").to_numpy(zero_copy_only=False)
-        assert success.sum() == e.meta["positives"] <= og.target_positives
-        assert (~success).sum() == e.meta["negatives"] <= og.target_negatives
-        assert e.meta["tried"] <= og.max_candidates
+        positive = table.column(og.label_column).to_numpy(zero_copy_only=False)
+        assert og.selection == "natural" and og.label == "firm"
+        assert positive.sum() == e.meta["positives"] and (~positive).sum() == e.meta["negatives"]
+        assert len(table) <= og.target_grasps and e.meta["tried"] <= og.max_candidates
+        assert (table.column("outcome").to_numpy() > Outcome.COLLISION_WITH_CLUTTER).all()
         assert set(table.column("object_name").to_pylist()) <= {e.task}
         assert bool(e.meta.get("warnings")) == (not e.meta["reached"])
 
@@ -273,3 +274,38 @@ def test_once_the_positives_are_in_the_batches_are_mostly_near_misses(box):
     assert meta["positives"] == 2 and meta["candidates"]["near_miss"] >= 4 * 2 + 13 * 8  # late from batch 3 on
     with pytest.raises(SettingsError, match="near_miss_fraction_when_positives_met"):
         params(near_miss_fraction_when_positives_met=1.0)
+
+
+# ------------------------------------------------------------------------------------------------ natural selection
+
+
+def test_a_natural_set_keeps_every_collision_free_rollout_in_trial_order(box):
+    """``natural`` keeps what the balanced loop keeps with no near misses, no collisions and targets out of reach
+    (the reference), up to ``target_grasps``; its positives are the firm label's."""
+    reference = label_object_grasps(box, params(max_candidates=96, near_miss_fraction=0.0, collision_share=0.0),
+                                    np.random.default_rng(4))[0]
+    codes = reference.column("outcome").to_numpy()
+    assert (codes > Outcome.COLLISION_WITH_CLUTTER).all() and len(reference) >= 10
+    natural, meta = label_object_grasps(
+        box, ObjectGraspsParams(selection="natural", target_grasps=10, batch_size=16, max_candidates=96),
+        np.random.default_rng(4))
+    np.testing.assert_array_equal(column_array(natural, "pose_object", (16,)),
+                                  column_array(reference, "pose_object", (16,))[:10])
+    firm = natural.column("firm").to_numpy(zero_copy_only=False)
+    assert meta["reached"] and meta["stopped"] == "targets" and set(natural.column("candidate").to_pylist()) == {
+        "antipodal"}
+    assert (meta["positives"], meta["negatives"]) == (int(firm.sum()), int((~firm).sum()))
+    assert meta["positive_rate"] == pytest.approx(firm.mean())
+    assert meta["collisions_dropped"] == sum(meta["outcomes"][n] for n in (
+        "collision_with_ground", "collision_with_target", "collision_with_clutter"))
+    assert meta["tried"] == 10 + meta["collisions_dropped"]
+    assert shortfall("box", meta) is None
+
+
+def test_a_natural_set_short_of_its_target_warns_with_the_count(box):
+    table, meta = label_object_grasps(
+        box, ObjectGraspsParams(selection="natural", target_grasps=500, batch_size=16, max_candidates=16),
+        np.random.default_rng(2))
+    assert not meta["reached"] and len(table) < 500
+    assert shortfall("box", meta) == (f"object 'box': {len(table)} of 500 collision-free grasps after 16 candidates "
+                                      "(object_grasps.max_candidates)")
