@@ -156,7 +156,19 @@ def _set_path(raw: dict, parts: list[str], value: Any) -> None:
     node[parts[-1]] = value
 
 
-def _build(cls: type, raw: Any, prefix: str) -> Any:
+def _nested_default(f: dataclasses.Field, base: Any) -> Any:
+    """What a nested section starts from: the enclosing default's value (``base``), else the field's
+    ``default_factory`` (a section may default to other values than its class's), else None (the class's)."""
+    if base is not None:
+        return getattr(base, f.name)
+    if f.default_factory is not dataclasses.MISSING:  # type: ignore[misc]
+        return f.default_factory()  # type: ignore[misc]
+    return None
+
+
+def _build(cls: type, raw: Any, prefix: str, base: Any = None) -> Any:
+    """``cls`` from the mapping ``raw``; keys it does not set keep ``base``'s values (a default instance of ``cls``)
+    or ``cls``'s defaults."""
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
@@ -170,13 +182,16 @@ def _build(cls: type, raw: Any, prefix: str) -> Any:
         key = unknown[0]
         raise ConfigError(f"{prefix}{key}: unknown key; valid keys: {', '.join(sorted(valid))}")
     kwargs = {}
-    for name in fields:
+    for name, f in fields.items():
+        nested = _nested_default(f, base) if dataclasses.is_dataclass(hints[name]) else None
         if name in flat:
-            kwargs[name] = _build(hints[name], {k: v for k, v in raw.items() if k in flat[name]}, prefix)
+            kwargs[name] = _build(hints[name], {k: v for k, v in raw.items() if k in flat[name]}, prefix, nested)
         elif name in raw:
-            kwargs[name] = _convert(hints[name], raw[name], f"{prefix}{name}")
+            kwargs[name] = _convert(hints[name], raw[name], f"{prefix}{name}", nested)
         elif dataclasses.is_dataclass(hints[name]):
-            kwargs[name] = _build(hints[name], {}, f"{prefix}{name}.")
+            kwargs[name] = _build(hints[name], {}, f"{prefix}{name}.", nested)
+        elif base is not None:
+            kwargs[name] = getattr(base, name)
     try:
         return cls(**kwargs)
     except ValueError as exc:
@@ -200,13 +215,14 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
 
-def _convert(tp: Any, value: Any, path: str) -> Any:
-    """Check ``value`` against the annotation ``tp``; return it in the dataclass's own type (tuples, not lists)."""
+def _convert(tp: Any, value: Any, path: str, base: Any = None) -> Any:
+    """Check ``value`` against the annotation ``tp``; return it in the dataclass's own type (tuples, not lists);
+    a dataclass section starts from ``base`` when given (:func:`_build`)."""
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     bad = ConfigError(f"{path}: must be {_type_name(tp)}, got {value!r}")
     if dataclasses.is_dataclass(tp):
-        return _build(tp, value, f"{path}.")
+        return _build(tp, value, f"{path}.", base)
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None

@@ -116,8 +116,9 @@ def acronym_population(files: list[Path], per_object: int, seed: int) -> dict:
     return {k: np.concatenate(v) for k, v in cols.items()}
 
 
-def ours_population(run: Path) -> tuple[dict, dict]:
-    """Our sets' kept rows (outcome, firm, the two measures) and the summed task metadata."""
+def ours_population(run: Path, selection: str | None = None) -> tuple[dict, dict]:
+    """Our sets' kept rows (outcome, firm, the two measures) and the summed task metadata; ``selection``: only the
+    sets made with it (``natural``, ``balanced``; sets that do not say are ``balanced``)."""
     import pyarrow.parquet as pq
     import trimesh
 
@@ -130,14 +131,17 @@ def ours_population(run: Path) -> tuple[dict, dict]:
         return {r["task"]: r for r in rows if r.get("status", "ok") == "ok"}
 
     objects, sets = manifest("objects"), manifest("object_grasps")
+    if selection is not None:
+        sets = {k: r for k, r in sets.items() if r.get("meta", {}).get("selection", "balanced") == selection}
     cols: dict[str, list] = {k: [] for k in ("outcome", "firm", "overlap", "distance")}
-    tried = dropped = 0
+    tried = dropped = objects_read = 0
     for name in sorted(sets):
         t = pq.read_table(run / "shards" / "object_grasps" / sets[name]["file"],
                           columns=["pose_object", "outcome", "firm", "gripper"])
         meta = sets[name].get("meta", {})
         tried += int(meta.get("tried", 0))
         dropped += int(meta.get("collisions_dropped", 0))
+        objects_read += 1
         if t.num_rows == 0:
             continue
         record = read_object(run / "shards" / "objects" / objects[name]["file"])
@@ -147,7 +151,8 @@ def ours_population(run: Path) -> tuple[dict, dict]:
         cols["firm"].append(t.column("firm").to_numpy(zero_copy_only=False).astype(bool))
         cols["overlap"].append(pad_overlap(mesh, T, load_gripper(t.column("gripper")[0].as_py())))
         cols["distance"].append(com_distance(T, np.asarray(record.center_of_mass)))
-    return {k: np.concatenate(v) for k, v in cols.items()}, {"tried": tried, "collisions_dropped": dropped}
+    return {k: np.concatenate(v) for k, v in cols.items()}, {"tried": tried, "collisions_dropped": dropped,
+                                                             "objects": objects_read}
 
 
 def summary(pop: dict) -> dict:
@@ -185,18 +190,20 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--learn", type=Path, default=DEFAULT_LEARN)
     ap.add_argument("--per-object", type=int, default=200)
-    ap.add_argument("--ours", type=Path, action="append", default=[], help="run folder(s) of gen run object_grasps")
+    ap.add_argument("--ours", action="append", default=[], metavar="RUN[:SELECTION]",
+                    help="run folder(s) of gen run object_grasps, optionally only its sets of one selection")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=HERE / "results_outcome_mix.json")
     args = ap.parse_args()
     train = [f for f in _files(args.learn) if not _is_valid(_group(f))]
     result = {"acronym": summary(acronym_population(train, args.per_object, args.seed)), "ours": {}}
     _print("ACRONYM's poses, training files", result["acronym"])
-    for run in args.ours:
-        pop, meta = ours_population(run)
-        result["ours"][str(run)] = {**summary(pop), **meta}
-        _print(f"our sets ({run}; {meta['tried']} tried, {meta['collisions_dropped']} collisions dropped)",
-               result["ours"][str(run)])
+    for spec in args.ours:
+        run, _, selection = spec.partition(":")
+        pop, meta = ours_population(Path(run), selection or None)
+        result["ours"][spec] = {**summary(pop), **meta}
+        _print(f"our sets ({spec}; {meta['objects']} objects, {meta['tried']} tried, {meta['collisions_dropped']} "
+               "collisions dropped)", result["ours"][spec])
     args.out.write_text(json.dumps(result, indent=1))
     print(f"\nwrote {args.out}")
 

@@ -33,6 +33,7 @@ from graspgen.geometry.units import normalize_units
 from graspgen.grippers import load_gripper
 from graspgen.learn.sources import ObjectGraspSet
 from graspgen.validation import check, check_int, check_number, check_rng
+from graspgen.workflows.object_grasps_settings import free_space_sampler
 
 __all__ = ["Candidates", "Pick", "PickParams", "pick", "sample_candidates", "simulate_pick"]
 
@@ -51,8 +52,9 @@ class PickParams:
     """Grasps chosen by score, and as many at random."""
     scale: float | None = None
     """Metres per mesh unit; None detects millimetres / centimetres from the size (with a warning)."""
-    sampler: AntipodalParams = dataclasses.field(default_factory=lambda: AntipodalParams(approach="any"))
-    """The antipodal sampler (the object-grasps stage's default: approach axes over the whole sphere)."""
+    sampler: AntipodalParams = dataclasses.field(default_factory=free_space_sampler)
+    """The antipodal sampler (the object-grasps stage's default,
+    :func:`graspgen.workflows.object_grasps_settings.free_space_sampler`)."""
     max_extent: float = 1.0
     """Largest accepted object extent after scaling, m (as
     :class:`graspgen.workflows.evaluate_settings.EvaluateParams`)."""

@@ -98,25 +98,58 @@ def _widths(mesh, T: np.ndarray, gripper) -> np.ndarray:
     return np.where(np.isfinite(w), np.clip(w, gripper.min_width, gripper.max_width), gripper.max_width)
 
 
-_PHYSICS_CODE = ("graspgen/workflows", "graspgen/sim", "graspgen/geometry", "graspgen/grippers", "graspgen/quality",
-                 "assets/grippers")
-"""What simulated labels depend on besides their inputs: an edit there (or another MuJoCo) makes new labels."""
+_PHYSICS_ROOTS = ("graspgen.workflows.evaluate",)
+"""The modules simulated labels are made by; with every ``graspgen`` module they can import (any import statement,
+function-level ones included: :func:`physics_modules`) they are the code the labels depend on."""
+_PHYSICS_DATA = ("assets/grippers",)
+"""Data the labels depend on besides the code: the bundled grippers' files."""
+
+
+def physics_modules() -> list[Path]:
+    """The source files of :data:`_PHYSICS_ROOTS` and of every ``graspgen`` module they can import, transitively
+    (read from their import statements, not by running them), with the packages' ``__init__.py``; sorted."""
+    import ast
+
+    root = Path(__file__).resolve().parents[2]
+
+    def files(name: str) -> list[Path]:
+        parts = name.split(".")
+        found = [root.joinpath(*parts[:i], "__init__.py") for i in range(1, len(parts) + 1)]
+        found.append(root.joinpath(*parts).with_suffix(".py"))
+        return [f for f in found if f.is_file()]
+
+    seen: set[Path] = set()
+    todo = [f for name in _PHYSICS_ROOTS for f in files(name)]
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        for node in ast.walk(ast.parse(path.read_bytes())):
+            names: list[str] = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            todo += [f for n in names if n.split(".")[0] == "graspgen" for f in files(n)]
+    return sorted(seen)
 
 
 def _physics_digest() -> str:
-    """sha256 of the physics code and gripper assets (:data:`_PHYSICS_CODE`) and MuJoCo's version. A Python file
-    enters as its syntax tree without docstrings (:func:`code_digest_text`): comments, docstrings and layout do not
-    change labels, so editing them keeps the cache."""
+    """sha256 of the code simulated labels depend on (:func:`physics_modules`), the gripper assets
+    (:data:`_PHYSICS_DATA`) and MuJoCo's version. A Python file enters as its syntax tree without docstrings
+    (:func:`code_digest_text`): comments, docstrings and layout do not change labels, so editing them (or code the
+    labels do not run) keeps the cache."""
     import mujoco
 
     root = Path(__file__).resolve().parents[2]
     h = hashlib.sha256(mujoco.__version__.encode())
-    for rel in _PHYSICS_CODE:
-        top = root / rel
-        for f in sorted(top.rglob("*")) if top.is_dir() else [top]:
+    for f in physics_modules():
+        h.update(f.relative_to(root).as_posix().encode() + b"\0" + code_digest_text(f.read_bytes()))
+    for rel in _PHYSICS_DATA:
+        for f in sorted((root / rel).rglob("*")):
             if f.is_file() and f.suffix in (".py", ".yaml", ".obj", ".stl") and "__pycache__" not in f.parts:
-                data = code_digest_text(f.read_bytes()) if f.suffix == ".py" else f.read_bytes()
-                h.update(f.relative_to(root).as_posix().encode() + b"\0" + data)
+                h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes())
     return h.hexdigest()
 
 

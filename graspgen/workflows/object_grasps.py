@@ -3,12 +3,13 @@
 :func:`label_object_grasps` takes one prepared object (an :class:`graspgen.io.objects.ObjectRecord`, mesh frame = the
 object frame), rolls out grasp candidates on it in free space and keeps some of them, by ``selection``:
 
-* ``natural`` (default): antipodal candidates only, each kept whatever its outcome unless the open hand collides
-  with the object at placement (outcomes 0-2, counted and dropped), until ``target_grasps`` are kept or
-  ``max_candidates`` were tried. The set is the sampler's contact-making, collision-free distribution, labelled:
-  ACRONYM's convention, and the one a grasp evaluator meets when it scores a planner's candidates. Its positive
-  rate (``meta["positive_rate"]``) is the natural one; a balanced view is the trainer's business (the probe draws
-  balanced batches). Why: docs/decisions/2026-12-07-natural-object-sets.md.
+* ``natural`` (default): antipodal candidates only, each kept whatever its outcome, until ``target_grasps`` that
+  do not collide at placement are kept or ``max_candidates`` were tried; a collision at placement (outcomes 0-2:
+  the open hand intersects the object) is kept as a negative while the kept collisions stay within
+  ``collision_share`` of the kept negatives, and counted and dropped otherwise. The set is the sampler's
+  contact-making distribution, labelled: ACRONYM's convention, and what a grasp evaluator meets when it scores a
+  planner's candidates. Its positive rate (``meta["positive_rate"]``) is the natural one; a balanced view is the
+  trainer's business (the probe draws balanced batches). Why: docs/decisions/2026-12-07-natural-object-sets.md.
 * ``balanced``: until ``target_positives`` positives and ``target_negatives`` failures are kept, as below.
 
 The ``balanced`` loop (steps 1-2 below describe it; ``natural`` uses step 1 without near misses and step 2's
@@ -229,6 +230,9 @@ class _Search:
     negatives: int = 0
     tried: int = 0
     collisions: int = 0
+    """Collisions at placement kept (as negatives)."""
+    dropped: int = 0
+    """``natural``: collisions at placement not kept (over ``collision_share`` of the negatives)."""
     stopped: str = "max_candidates"
     good_pose: list[np.ndarray] = dataclasses.field(default_factory=list)
     """The antipodal candidates that succeeded (the near misses' parents): TCP poses, widths, depths."""
@@ -239,7 +243,7 @@ class _Search:
 
     def done(self) -> bool:
         if self.params.selection == "natural":
-            return len(self.kept) >= self.params.target_grasps
+            return len(self.kept) - self.collisions >= self.params.target_grasps
         return self.positives >= self.params.target_positives and self.negatives >= self.params.target_negatives
 
     def record(self, kind: str, T: np.ndarray, w: float, depth: float, result: RolloutResult) -> None:
@@ -269,9 +273,15 @@ class _Search:
             self.kept.append((kind, T, w, result))
 
     def _record_natural(self, kind: str, T: np.ndarray, w: float, result: RolloutResult) -> None:
-        """``natural``: keep every rollout that does not collide at placement, whatever its outcome."""
+        """``natural``: keep every rollout that does not collide at placement, whatever its outcome, and a collision
+        while the kept collisions stay within ``collision_share`` of the kept negatives."""
         if result.code <= Outcome.COLLISION_WITH_CLUTTER:
+            if self.collisions + 1 > self.params.collision_share * (self.negatives + 1):
+                self.dropped += 1
+                return
             self.collisions += 1
+            self.negatives += 1
+            self.kept.append((kind, T, w, result))
             return
         if self.params.positive(result):
             self.positives += 1
@@ -493,8 +503,8 @@ def _meta(name: str, params: ObjectGraspsParams, search: _Search, sampled: int, 
         "label": params.label,
         "target_grasps": params.target_grasps if params.selection == "natural" else None,
         "positive_rate": search.positives / len(search.kept) if search.kept else None,
-        "collision_negatives": search.collisions if params.selection == "balanced" else 0,
-        "collisions_dropped": search.collisions if params.selection == "natural" else 0,
+        "collision_negatives": search.collisions,
+        "collisions_dropped": search.dropped,
         "stopped": search.stopped,
         "outcomes": {name: int(search.counts[c]) for c, name in enumerate(OUTCOME_NAMES)},
         "candidates": {k: int(v.sum()) for k, v in search.by_kind.items()},

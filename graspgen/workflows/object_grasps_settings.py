@@ -17,7 +17,7 @@ from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams, check_backen
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
 
 __all__ = ["LABELS", "PROTOCOLS", "SELECTIONS", "ObjectGraspsParams", "default_overhang", "default_tilt",
-           "protocol_opening"]
+           "free_space_sampler", "protocol_opening"]
 
 PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen")
 """The protocols an object-centric set may use: the free-space ones of :data:`graspgen.sim.protocols.PROTOCOLS`."""
@@ -43,12 +43,13 @@ class ObjectGraspsParams:
     selection: str = "natural"
     """Which rollouts are kept. ``natural`` (default): every antipodal candidate that does not collide at placement
     (outcomes 3-5), whatever its outcome, until ``target_grasps`` are kept: the sampler's own contact-making,
-    collision-free distribution with its natural success rate, as ACRONYM keeps its poses (no near misses; the
-    collisions are counted in the metadata, not kept). ``balanced``: ``target_positives`` positives and
-    ``target_negatives`` negatives, with near misses and at most ``collision_share`` collisions among the
-    negatives. Why natural: docs/decisions/2026-12-07-natural-object-sets.md."""
+    collision-free distribution with its natural success rate, as ACRONYM keeps its poses (no near misses), plus
+    collisions as they come within ``collision_share`` of the negatives. ``balanced``: ``target_positives``
+    positives and ``target_negatives`` negatives, with near misses and at most ``collision_share`` collisions
+    among the negatives. Why natural: docs/decisions/2026-12-07-natural-object-sets.md."""
     target_grasps: int = 800
-    """``natural``: collision-free rollouts to keep per object (the first ones in trial order)."""
+    """``natural``: rollouts that do not collide at placement to keep per object (the first ones in trial
+    order)."""
     target_positives: int = 1000
     """``balanced``: positives to keep per object (the first ones in trial order)."""
     target_negatives: int = 1000
@@ -56,9 +57,11 @@ class ObjectGraspsParams:
     max_candidates: int = 20000
     """Most rollouts per object; the loop stops here even when a target is not met (a warning says so)."""
     collision_share: float = 0.25
-    """``balanced``: largest share of the kept negatives that may be collisions at placement (outcomes 0-2: the
-    open hand intersects the object where the grasp puts it), in [0, 1]; 1 keeps failures as they come. Why a cap:
-    collisions are the cheapest negatives and teach least (the hand never closed)."""
+    """Largest share of the kept negatives that may be collisions at placement (outcomes 0-2: the open hand
+    intersects the object where the grasp puts it), in [0, 1]; 1 keeps failures as they come. Why keep some: a
+    grasp model scores a planner's candidates, most of which collide (88 % of the antipodal candidates on the
+    learning meshes), and must learn to rank them last. Why a cap: they are the cheapest negatives and teach
+    nothing of what holds."""
     batch_size: int = 128
     """Candidates sampled per batch (antipodal plus near misses, in a shuffled order)."""
     near_miss_fraction: float = 0.3
@@ -75,9 +78,11 @@ class ObjectGraspsParams:
     """Tilted near misses: the tilt (rad, in (0, pi/2]) of the hand about the TCP, about a random axis
     perpendicular to the approach; null: ``atan(max_width / (2 finger_length))`` of the gripper (Panda 0.640 rad),
     the smallest tilt that swings an open finger's base past the grasp's centre line."""
-    sampler: AntipodalParams = dataclasses.field(default_factory=lambda: AntipodalParams(approach="any"))
+    sampler: AntipodalParams = dataclasses.field(default_factory=lambda: free_space_sampler())
     """Antipodal sampling on the object's mesh (surface points, friction cone, orientations, depths). Its
-    ``approach`` is always ``any`` here: approach axes over the whole sphere, in the object frame."""
+    ``approach`` is always ``any`` here: approach axes over the whole sphere, in the object frame. Defaults as
+    ACRONYM samples: the friction cone of its published coefficient (1.0) and the TCP at the contacts' midpoint
+    (one depth: free space has no table for the finger tips to reach)."""
     lift: LiftParams = dataclasses.field(default_factory=lambda: LiftParams(protocol="acronym"))
     """The rollout's protocol settings (``lift.acronym``, ``lift.graspgen``, physics); ``lift.protocol`` is set
     from ``protocol``."""
@@ -179,6 +184,12 @@ class ObjectGraspsParams:
     def tilt(self, gripper: GripperSpec) -> float:
         """The tilted near misses' tilt (rad) for ``gripper``: ``near_miss_tilt`` or :func:`default_tilt`."""
         return default_tilt(gripper) if self.near_miss_tilt is None else float(self.near_miss_tilt)
+
+
+def free_space_sampler() -> AntipodalParams:
+    """The antipodal sampler of object-centric sets (and of ``gen probe pick``'s candidates): approach axes over
+    the whole sphere, the friction cone of ACRONYM's coefficient 1.0, the TCP at the contacts' midpoint."""
+    return AntipodalParams(approach="any", friction=1.0, num_depths=1)
 
 
 def default_overhang(gripper: GripperSpec) -> float:

@@ -118,3 +118,19 @@ def test_yaml_round_trip_with_docs(tmp_path):
     reloaded = load_config(Root, write(tmp_path, yaml.safe_load(text)))
     assert to_dict(reloaded) == to_dict(cfg)
     assert field_docs(Inner)["sizes"] == "A range, m."
+
+
+@dataclasses.dataclass(frozen=True)
+class Outer:
+    free_space: Inner = dataclasses.field(default_factory=lambda: Inner(friction=1.0, mode="any"))
+    """A section whose default is not its class's."""
+    table_top: Inner = dataclasses.field(default_factory=Inner)
+
+
+def test_a_section_starts_from_its_fields_default_not_its_classs(tmp_path):
+    assert load_config(Outer) == Outer()  # friction 1.0, mode any: the field's default
+    cfg = load_config(Outer, write(tmp_path, {"free_space": {"sizes": [0.0, 0.3]}}))
+    assert cfg.free_space == Inner(friction=1.0, mode="any", sizes=(0.0, 0.3))  # the unset keys keep the default
+    assert cfg.table_top == Inner()
+    cfg = load_config(Outer, write(tmp_path, {"free_space": {"mode": "above"}}), ["table_top.friction=2"])
+    assert cfg.free_space == Inner(friction=1.0, mode="above") and cfg.table_top == Inner(friction=2.0)

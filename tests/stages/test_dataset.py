@@ -248,7 +248,7 @@ def test_config_yaml_makes_the_same_config(run):
 
 
 def test_object_sets_are_the_stage_shards_one_after_the_other(run):
-    root, _ = run
+    root, cfg = run
     out = root / "out"
     for stage, by in (("object_grasps", "object_name"), ("placed_grasps", "scene_id")):
         published = pq.read_table(out / "dataset" / f"{stage}.parquet")
@@ -265,7 +265,8 @@ def test_object_sets_are_the_stage_shards_one_after_the_other(run):
         assert o["label"] == "firm" and o["selection"] == "natural"  # the defaults
         assert o["positives"] == sum(rows.column("firm").to_pylist())
         assert o["positives"] + o["negatives"] == len(rows) and o["tried"] >= len(rows)
-        assert sum(o["outcome_mix"].values()) == len(rows) and o["outcome_mix"]["collision"] == 0
+        assert sum(o["outcome_mix"].values()) == len(rows)
+        assert o["outcome_mix"]["collision"] <= cfg.object_grasps.collision_share * o["negatives"]
     placed = pq.read_table(out / "dataset" / "placed_grasps.parquet")
     assert sets["placed"]["grasps"] == len(placed)
     assert sets["placed"]["positives"] == sum(placed.column("success").to_pylist())

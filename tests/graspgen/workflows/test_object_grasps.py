@@ -233,8 +233,9 @@ def test_the_stage_runs_in_the_smoke_pipeline(tmp_path):
         positive = table.column(og.label_column).to_numpy(zero_copy_only=False)
         assert og.selection == "natural" and og.label == "firm"
         assert positive.sum() == e.meta["positives"] and (~positive).sum() == e.meta["negatives"]
-        assert len(table) <= og.target_grasps and e.meta["tried"] <= og.max_candidates
-        assert (table.column("outcome").to_numpy() > Outcome.COLLISION_WITH_CLUTTER).all()
+        collision = table.column("outcome").to_numpy() <= Outcome.COLLISION_WITH_CLUTTER
+        assert (~collision).sum() <= og.target_grasps and e.meta["tried"] <= og.max_candidates
+        assert collision.sum() == e.meta["collision_negatives"] <= og.collision_share * e.meta["negatives"]
         assert set(table.column("object_name").to_pylist()) <= {e.task}
         assert bool(e.meta.get("warnings")) == (not e.meta["reached"])
 
@@ -287,8 +288,8 @@ def test_a_natural_set_keeps_every_collision_free_rollout_in_trial_order(box):
     codes = reference.column("outcome").to_numpy()
     assert (codes > Outcome.COLLISION_WITH_CLUTTER).all() and len(reference) >= 10
     natural, meta = label_object_grasps(
-        box, ObjectGraspsParams(selection="natural", target_grasps=10, batch_size=16, max_candidates=96),
-        np.random.default_rng(4))
+        box, ObjectGraspsParams(selection="natural", target_grasps=10, batch_size=16, max_candidates=96,
+                                collision_share=0.0), np.random.default_rng(4))
     np.testing.assert_array_equal(column_array(natural, "pose_object", (16,)),
                                   column_array(reference, "pose_object", (16,))[:10])
     firm = natural.column("firm").to_numpy(zero_copy_only=False)
@@ -309,3 +310,31 @@ def test_a_natural_set_short_of_its_target_warns_with_the_count(box):
     assert not meta["reached"] and len(table) < 500
     assert shortfall("box", meta) == (f"object 'box': {len(table)} of 500 collision-free grasps after 16 candidates "
                                       "(object_grasps.max_candidates)")
+
+
+def test_a_natural_set_keeps_collisions_within_their_share_of_the_negatives(box):
+    """Reference: every rollout of the same trials (balanced, nothing capped, targets out of reach), the rule
+    applied by hand: a collision is kept while the kept collisions stay within 0.25 of the kept negatives."""
+    every = label_object_grasps(box, params(max_candidates=64, near_miss_fraction=0.0, collision_share=1.0),
+                                np.random.default_rng(6))[0]
+    codes, firm = every.column("outcome").to_numpy(), every.column("firm").to_numpy(zero_copy_only=False)
+    expected, collisions, negatives, free = [], 0, 0, 0
+    for i, code in enumerate(codes):
+        if free == 20:
+            break
+        if code <= Outcome.COLLISION_WITH_CLUTTER:
+            if collisions + 1 > 0.25 * (negatives + 1):
+                continue
+            collisions, negatives = collisions + 1, negatives + 1
+        else:
+            free += 1
+            negatives += not firm[i]
+        expected.append(i)
+    assert collisions >= 1, "need a kept collision"
+    got, meta = label_object_grasps(
+        box, ObjectGraspsParams(selection="natural", target_grasps=20, batch_size=16, max_candidates=64,
+                                collision_share=0.25), np.random.default_rng(6))
+    np.testing.assert_array_equal(column_array(got, "pose_object", (16,)),
+                                  column_array(every, "pose_object", (16,))[expected])
+    assert meta["collision_negatives"] == collisions and meta["negatives"] == negatives
+    assert meta["tried"] == len(expected) + meta["collisions_dropped"]
