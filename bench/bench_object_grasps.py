@@ -7,7 +7,8 @@ Two measurements, in one process:
   space does not use it), then :func:`graspgen.workflows.object_grasps.label_object_grasps` with the Panda and the
   ``acronym`` protocol, once per selection (``--selections``), in this process: ``natural`` (the default set:
   ``--grasps`` collision-free grasps, default 200, firm label) and ``balanced`` (the sets before 2026-12-07:
-  ``--positives`` / ``--negatives`` targets, default 100 / 100, held label, near misses), both at most
+  ``--positives`` / ``--negatives`` targets, default 100 / 100, held label, near misses, the sampler's class
+  defaults), both at most
   ``--max-candidates`` (3,000). Labelled grasps per core-hour = kept rows / CPU seconds of the labelling
   (``time.process_time``: the machine may be shared, so wall time would charge us for other processes) x 3,600;
   wall-clock figures are printed beside it. Preparing the meshes is not counted (the objects stage's work, cached).
@@ -42,6 +43,7 @@ import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
+from graspgen.geometry.antipodal import AntipodalParams  # noqa: E402
 from graspgen.geometry.prepare import prepare_object  # noqa: E402
 from graspgen.geometry.stable_poses import StablePoseParams  # noqa: E402
 from graspgen.io.arrow import column_array  # noqa: E402
@@ -161,7 +163,8 @@ def main(argv: list[str] | None = None) -> int:
         "natural": ObjectGraspsParams(selection="natural", label="firm", target_grasps=args.grasps,
                                       max_candidates=args.max_candidates),
         "balanced": ObjectGraspsParams(selection="balanced", label="held", target_positives=args.positives,
-                                       target_negatives=args.negatives, max_candidates=args.max_candidates),
+                                       target_negatives=args.negatives, max_candidates=args.max_candidates,
+                                       sampler=AntipodalParams(approach="any")),  # the sets before 2026-12-07
     }
     results: dict = {"throughput": {}}
     for selection in args.selections.split(","):

@@ -11,8 +11,9 @@ same in every run, chosen before any figure was seen), three label sources train
 * (b') ``firm``: the same simulation's firm-hold label (held, and the object stayed within 5 mm / 5 degrees of
   where it was in the hand: :attr:`graspgen.sim.protocols.RolloutResult.firm`);
 * (c) ``ours``: our own object-centric sets made on the same training meshes, no FleX data at all: the
-  ``object_grasps`` stage run on the training files (``--ours RUN``: a run folder of ``gen run object_grasps`` with
-  the manifest this script writes with ``--write-manifest``; see ``--help``).
+  ``object_grasps`` stage run on the training files (``--ours RUN[:LABEL]``, repeatable: a run folder of ``gen run
+  object_grasps`` with the manifest this script writes with ``--write-manifest``, read by the sets' own label or
+  by ``held`` / ``firm``; each a row ``c_<folder>[:LABEL]``; see ``--help``).
 
 Each network is evaluated on FleX's labels and on our two labels of the validation files' grasps: pooled ROC-AUC,
 average precision, mean per-object AUC (within-object discrimination, which knowing each object's success rate
@@ -23,10 +24,11 @@ on both label sources. Training wall and CPU time are reported per network.
 
 Nothing here is tuned on the validation objects: the settings are the library's defaults.
 
-``--pick N`` runs ``gen probe pick`` on every validation mesh with network (c) (or (b) without ``--ours``): the top
-10 of N sampled candidates and 10 random ones, rolled out.
+``--pick N`` runs ``gen probe pick`` on every validation mesh with the first network (c) (or (b) without ``--ours``):
+the top 10 of N sampled candidates and 10 random ones, rolled out at the file's density and friction.
 
-Run: ``python -m studies.learnability [--learn DIR] [--per-object N] [-j 2] [--ours RUN] [--curve] [--pick N]``; writes
+Run: ``python -m studies.learnability [--learn DIR] [--per-object N] [-j 2] [--ours RUN[:LABEL]]... [--curve]
+[--pick N]``; writes
 ``studies/results_learnability.json`` (gitignored).
 """
 
