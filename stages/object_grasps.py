@@ -85,8 +85,8 @@ def shortfall(name: str, meta: dict[str, Any]) -> str | None:
     if meta["reached"]:
         return None
     if meta.get("selection") == "natural":
-        counts = (f"object {name!r}: {meta['positives'] + meta['negatives']} of {meta['target_grasps']} "
-                  "collision-free grasps")
+        free = meta["positives"] + meta["negatives"] - meta.get("collision_negatives", 0)
+        counts = f"object {name!r}: {free} of {meta['target_grasps']} collision-free grasps"
     else:
         counts = (f"object {name!r}: {meta['positives']} of {meta['target_positives']} positives, "
                   f"{meta['negatives']} of {meta['target_negatives']} negatives")

@@ -307,8 +307,9 @@ def test_a_natural_set_short_of_its_target_warns_with_the_count(box):
     table, meta = label_object_grasps(
         box, ObjectGraspsParams(selection="natural", target_grasps=500, batch_size=16, max_candidates=16),
         np.random.default_rng(2))
-    assert not meta["reached"] and len(table) < 500
-    assert shortfall("box", meta) == (f"object 'box': {len(table)} of 500 collision-free grasps after 16 candidates "
+    free = int((table.column("outcome").to_numpy() > Outcome.COLLISION_WITH_CLUTTER).sum())
+    assert not meta["reached"] and free < len(table) < 500  # some collisions kept: not counted as collision-free
+    assert shortfall("box", meta) == (f"object 'box': {free} of 500 collision-free grasps after 16 candidates "
                                       "(object_grasps.max_candidates)")
 
 
