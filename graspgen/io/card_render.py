@@ -254,24 +254,48 @@ def _provenance_lines(card: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+OBJECT_SET_MIX = {"firm": "firm", "held_not_firm": "held but not firm", "slipped": "slipped", "no_contact":
+                  "no contact", "collision": "collision at placement"}
+"""The outcome mix of the object-centric sets as the card names it."""
+
+
+def _share(part: int, whole: int) -> str:
+    return "-" if not whole else f"{100 * part / whole:.1f}%"
+
+
 def _object_set_lines(sets: Mapping[str, Any]) -> list[str]:
     """The card's section on the object-centric sets (nothing when the dataset has none)."""
     lines: list[str] = []
     if "objects" in sets:
+        objects = sets["objects"]
+        mix = {k: sum(o["outcome_mix"][k] for o in objects.values()) for k in OBJECT_SET_MIX}
+        kept = sum(o["grasps"] for o in objects.values())
+        labels = sorted({o["label"] for o in objects.values()})
+        selections = sorted({o["selection"] for o in objects.values()})
         lines += [
             "## Object-centric grasp sets",
             "",
-            "Per object: grasps sampled over the whole object and labelled in free space (`object_grasps.parquet`), "
-            "kept until the targets were met or the candidate budget was spent.",
+            "Per object: grasps sampled over the whole object and labelled in free space (`object_grasps.parquet`). "
+            f"Selection: {', '.join(selections)} (`natural`: every candidate that does not collide at placement, "
+            "kept whatever its outcome, so the positive share is the sampler's own, and collisions within "
+            "`collision_share` of the negatives; `balanced`: kept until positive and negative targets were met). "
+            f"Positives by the `{', '.join(labels)}` label (`object_grasps.label`).",
             "",
-            "| object | positives | target | negatives | target | tried | reached | near misses | their success |",
-            "| --- | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: |",
+            f"Outcome mix of the {kept} kept grasps: " + ", ".join(
+                f"{OBJECT_SET_MIX[k]} {mix[k]} ({_share(mix[k], kept)})" for k in OBJECT_SET_MIX) + ".",
+            "",
+            "| object | grasps | positives | share | held, not firm | slipped | no contact | collisions kept | "
+            "collisions dropped | tried | reached | near misses | their success |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: |",
         ]
-        for name, o in sets["objects"].items():
+        for name, o in objects.items():
             rate = "-" if o["near_miss_success_rate"] is None else f"{100 * o['near_miss_success_rate']:.1f}%"
             reached = "-" if o["reached"] is None else ("yes" if o["reached"] else "no")
-            lines.append(f"| {name} | {o['positives']} | {fmt(o['target_positives'])} | {o['negatives']} | "
-                         f"{fmt(o['target_negatives'])} | {fmt(o['tried'])} | {reached} | {o['near_miss']} | {rate} |")
+            m = o["outcome_mix"]
+            lines.append(f"| {name} | {o['grasps']} | {o['positives']} | {_share(o['positives'], o['grasps'])} | "
+                         f"{m['held_not_firm']} | {m['slipped']} | {m['no_contact']} | {m['collision']} | "
+                         f"{fmt(o['collisions_dropped'])} | {fmt(o['tried'])} | {reached} | {o['near_miss']} | "
+                         f"{rate} |")
         lines.append("")
     if "placed" in sets:
         p = sets["placed"]
