@@ -71,12 +71,15 @@ def test_a_box_set_on_the_warp_backend_keeps_the_cpu_backends_rows():
     box = _box()
     # antipodal candidates only (near misses sit on the edge of the rules by design); the targets stop the loop in
     # the middle of the first batch
-    settings = {"batch_size": 12, "near_miss_fraction": 0.0, "max_candidates": 12, "target_positives": 3,
-                "target_negatives": 1}
-    cpu, cpu_meta = label_object_grasps(box, ObjectGraspsParams(**settings), np.random.default_rng(3))
-    warp, meta = label_object_grasps(box, ObjectGraspsParams(**settings, backend="warp",
-                                                             warp=WarpParams(device="cpu")), np.random.default_rng(3))
-    assert cpu.column("outcome").to_pylist() == warp.column("outcome").to_pylist()
-    assert cpu.column("pose_object").to_pylist() == warp.column("pose_object").to_pylist()
-    assert meta["tried"] == cpu_meta["tried"] and meta["stopped"] == cpu_meta["stopped"]
-    assert meta["backend"] == {"name": "warp", "device_rollouts": 12} and "backend" not in cpu_meta
+    balanced = {"selection": "balanced", "label": "held", "batch_size": 12, "near_miss_fraction": 0.0,
+                "max_candidates": 12, "target_positives": 3, "target_negatives": 1}
+    natural = {"batch_size": 12, "max_candidates": 12, "target_grasps": 4}  # the default selection
+    for settings in (balanced, natural):
+        cpu, cpu_meta = label_object_grasps(box, ObjectGraspsParams(**settings), np.random.default_rng(3))
+        warp, meta = label_object_grasps(box, ObjectGraspsParams(**settings, backend="warp",
+                                                                 warp=WarpParams(device="cpu")),
+                                         np.random.default_rng(3))
+        assert cpu.column("outcome").to_pylist() == warp.column("outcome").to_pylist()
+        assert cpu.column("pose_object").to_pylist() == warp.column("pose_object").to_pylist()
+        assert meta["tried"] == cpu_meta["tried"] and meta["stopped"] == cpu_meta["stopped"]
+        assert meta["backend"] == {"name": "warp", "device_rollouts": 12} and "backend" not in cpu_meta
