@@ -8,7 +8,7 @@ In one process, pinned to one core where the OS allows it:
    config's ``object_grasps`` section); otherwise they are made here by the library,
    :func:`graspgen.workflows.object_grasps.label_object_grasps` (``--per-object`` rows per object, half successes, half
    failures; ``acronym`` protocol in free space); ``--set`` sizes the stage's sets
-   (``--set object_grasps.target_positives=200``). Their cost is reported, not counted in the placed rate: a set is
+   (``--set object_grasps.target_grasps=400``). Their cost is reported, not counted in the placed rate: a set is
    made once per object and reused by every scene it appears in (the amortised rate for this bench's scene count is
    printed too).
 2. **Placed** (:func:`graspgen.workflows.placed_grasps.place_object_grasps`, default params: grasp pose only, no
@@ -85,7 +85,8 @@ def _object_sets_here(records: dict, config, per_object: int) -> dict[str, pa.Ta
     from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
 
     base = getattr(config, "object_grasps", None) or ObjectGraspsParams(gripper=config.grasps.gripper)
-    params = dataclasses.replace(base, target_positives=per_object // 2, target_negatives=per_object // 2)
+    params = dataclasses.replace(base, selection="balanced", target_positives=per_object // 2,
+                                 target_negatives=per_object // 2)
     return {name: label_object_grasps(rec, params, np.random.default_rng(i))[0]
             for i, (name, rec) in enumerate(sorted(records.items()))}
 
@@ -99,7 +100,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", default=None)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="config override (e.g. object_grasps.target_positives=200); repeatable")
+                    help="config override (e.g. object_grasps.target_grasps=400); repeatable")
     args = ap.parse_args()
     pinned = _pin_one_core()
     out = Path(args.out)

@@ -180,7 +180,7 @@ def run_gen(args: list[str], extra_pids: tuple[int, ...] = ()) -> dict:
 
 
 SMALL = {
-    "object_grasps": {"target_positives": 8, "target_negatives": 8, "max_candidates": 160},
+    "object_grasps": {"target_grasps": 16, "max_candidates": 160},
     "grasps": {"max_per_object": 8},
     "robustness": {"num_perturbations": 2},
 }
@@ -367,7 +367,7 @@ def _sum_phases(parts: list[dict]) -> dict:
 def cost_model(row: dict) -> dict:
     """ACRONYM's size from one run (see the module docstring for the assumptions)."""
     og = bench_config().get("object_grasps", {})
-    grasps = og.get("target_positives", 0) + og.get("target_negatives", 0)
+    grasps = og.get("target_grasps", 0)
     scale = ACRONYM_GRASPS / grasps
     per_stage = row["stage_cpu_s_per_object"]
     overhead = 1 + (row["overhead_share"] or 0.0)

@@ -105,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--png", type=Path, default=STUDIES / "object_grasps_mug.png")
     args = ap.parse_args(argv)
     record, flex = mug_record(args.calibration)
-    params = ObjectGraspsParams(gripper="panda", protocol="acronym", target_positives=args.positives,
+    params = ObjectGraspsParams(gripper="panda", protocol="acronym", selection="balanced", label="held",
+                                target_positives=args.positives,
                                 target_negatives=args.negatives, max_candidates=args.max_candidates)
     t0 = time.perf_counter()
     table, meta = label_object_grasps(record, params, np.random.default_rng(0))

@@ -319,7 +319,7 @@ def _search(search: _Search, simulator: LiftSimulator | WarpLiftSimulator, body:
     natural = params.selection == "natural"
     while search.tried < params.max_candidates and not search.done():
         # Once the positives are in (and near misses of held grasps can be made), look for negatives where they are.
-        late = search.positives >= params.target_positives and bool(search.good_pose)
+        late = not natural and search.positives >= params.target_positives and bool(search.good_pose)
         n_near = 0 if natural else n_near_late if late else params.near_misses_per_batch
         batch = _batch(search, pool, n_near, gripper, overhang, tilt, rng)
         if batch is None:
@@ -466,7 +466,7 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
     simulator, body = free_space_simulator(record, params.gripper, params.lift, friction, warp)
     mesh = trimesh.Trimesh(np.asarray(record.vertices, dtype=np.float64), np.asarray(record.faces), process=False)
     pool = CandidatePool(mesh, gripper, params.sampler, rng)
-    search = _Search(params, collision_cap(params.collision_share, params.target_negatives))
+    search = _Search(params, collision_cap(params.collision_share, params.target_negatives or 0))
     _search(search, simulator, body, pool, gripper, overhang, tilt, rng)
 
     success_rows = [j for j, (_, _, _, r) in enumerate(search.kept) if params.positive(r)]

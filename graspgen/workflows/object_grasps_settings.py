@@ -50,10 +50,12 @@ class ObjectGraspsParams:
     target_grasps: int = 800
     """``natural``: rollouts that do not collide at placement to keep per object (the first ones in trial
     order)."""
-    target_positives: int = 1000
-    """``balanced``: positives to keep per object (the first ones in trial order)."""
-    target_negatives: int = 1000
-    """``balanced``: failures (not positive under ``label``) to keep per object (the first ones in trial order)."""
+    target_positives: int | None = None
+    """``balanced``: positives to keep per object (the first ones in trial order); null: 1000. Unset with
+    ``natural``."""
+    target_negatives: int | None = None
+    """``balanced``: failures (not positive under ``label``) to keep per object (the first ones in trial order);
+    null: 1000. Unset with ``natural``."""
     max_candidates: int = 20000
     """Most rollouts per object; the loop stops here even when a target is not met (a warning says so)."""
     collision_share: float = 0.25
@@ -123,9 +125,15 @@ class ObjectGraspsParams:
         check_choice("selection", self.selection, SELECTIONS)
         object.__setattr__(self, "target_grasps", check_int("target_grasps", self.target_grasps, low=1))
         for key in ("target_positives", "target_negatives"):
-            object.__setattr__(self, key, check_int(key, getattr(self, key), low=0))
-        check("target_negatives", self.target_positives + self.target_negatives > 0,
-              "be > 0 when target_positives is 0 (nothing to keep)", self.target_negatives)
+            value = getattr(self, key)
+            if self.selection == "natural":
+                check(key, value is None, "be unset with selection: natural, which keeps target_grasps rows whatever "
+                      "their outcome (set target_grasps, or selection: balanced)", value)
+            else:
+                object.__setattr__(self, key, check_int(key, 1000 if value is None else value, low=0))
+        if self.selection == "balanced":
+            check("target_negatives", self.target_positives + self.target_negatives > 0,
+                  "be > 0 when target_positives is 0 (nothing to keep)", self.target_negatives)
         object.__setattr__(self, "collision_share", check_number("collision_share", self.collision_share,
                                                                  low=0.0, high=1.0))
         for key in ("max_candidates", "batch_size"):

@@ -155,7 +155,7 @@ def test_evaluate_writes_both_labels(tmp_path):
 
 
 def test_object_grasps_label_switch():
-    firm = ObjectGraspsParams(target_positives=1, target_negatives=1)
+    firm = ObjectGraspsParams(selection="balanced", target_positives=1, target_negatives=1)
     held = dataclasses.replace(firm, label="held")
     swung = _roll(BAR, "acronym", y=BAR_OFFSET, grip_force=BAR_GRIP)
     steady = _roll(BOX, "acronym")

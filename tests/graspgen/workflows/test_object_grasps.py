@@ -339,3 +339,13 @@ def test_a_natural_set_keeps_collisions_within_their_share_of_the_negatives(box)
                                   column_array(every, "pose_object", (16,))[expected])
     assert meta["collision_negatives"] == collisions and meta["negatives"] == negatives
     assert meta["tried"] == len(expected) + meta["collisions_dropped"]
+
+
+def test_balanced_targets_with_a_natural_set_are_an_error_naming_the_way_out(tmp_path):
+    with pytest.raises(SettingsError, match="target_positives: must be unset with selection: natural.*target_grasps"):
+        ObjectGraspsParams(target_positives=400)
+    assert ObjectGraspsParams(selection="balanced").target_negatives == 1000
+    cfg = tmp_path / "old.yaml"
+    cfg.write_text("object_grasps:\n  target_positives: 400\n  target_negatives: 400\n")
+    with pytest.raises(Exception, match="object_grasps.target_positives: must be unset with selection: natural"):
+        load_config(PROJECT.schema, str(cfg))
