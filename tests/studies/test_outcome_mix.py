@@ -8,17 +8,11 @@ import trimesh
 
 from graspgen.grippers import load_gripper
 from studies.outcome_mix import _mix, com_distance, pad_overlap
+from tests.shapes import top_down
 
 PANDA = load_gripper("panda")
 PAD = PANDA.pad_size[1] * PANDA.pad_size[2] * 1e6  # mm^2: 17.4 x 17.6
 
-
-def top_down(x: float, y: float, z: float) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, 0], T[:3, 2] = (1.0, 0.0, 0.0), (0.0, 0.0, -1.0)
-    T[:3, 1] = np.cross(T[:3, 2], T[:3, 0])
-    T[:3, 3] = (x, y, z)
-    return T
 
 
 def test_pad_overlap_is_the_pad_face_on_the_box_and_shrinks_past_its_edges():

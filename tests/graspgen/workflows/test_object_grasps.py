@@ -25,6 +25,7 @@ from pipeline.scheduler import run_pipeline
 from pipeline.store import stage_dir
 from stages.object_grasps import shortfall
 from stages.project import PROJECT
+from tests.shapes import top_down
 
 PANDA = load_gripper("panda")
 HALF = np.array([0.02, 0.025, 0.03])  # the box's half extents, m: 40 x 50 x 60 mm, all within the Panda's 80 mm
@@ -40,14 +41,6 @@ def box() -> ObjectRecord:
                         center_of_mass=np.zeros(3), inertia=np.asarray(mesh.moment_inertia),
                         stable_poses=np.eye(4)[None], stable_probabilities=np.ones(1), attrs={})
 
-
-def top_down(x: float, y: float, z: float) -> np.ndarray:
-    """TCP at (x, y, z) approaching straight down the box's -z, closing along its x axis (across the 40 mm)."""
-    T = np.eye(4)
-    T[:3, 0], T[:3, 2] = (1.0, 0.0, 0.0), (0.0, 0.0, -1.0)
-    T[:3, 1] = np.cross(T[:3, 2], T[:3, 0])
-    T[:3, 3] = (x, y, z)
-    return T
 
 
 def params(**kw) -> ObjectGraspsParams:
