@@ -17,10 +17,15 @@ from graspgen.learn.report import score_report
 __all__ = ["baselines", "pooled_features"]
 
 
-def pooled_features(points: np.ndarray, width: np.ndarray) -> np.ndarray:
-    """(m, 27) float64 per grasp: width; fraction of the K rows inside the closing volume and of rows near it;
-    inside points with x < 0 and x > 0 (fractions); of the inside points mean, std, min, max of x, y, z; of the near
-    points mean, min, max of x, y, z (0 where there are none). ``points``: (m, K, 4) :func:`grasp_features` rows."""
+def pooled_features(points: np.ndarray, width: np.ndarray, num_points: int | None = None) -> np.ndarray:
+    """(m, 29) float64 per grasp: width; fraction of the K closing rows inside the closing volume and of them near
+    it; inside points with x < 0 and x > 0 (fractions); of the inside points mean, std, min, max of x, y, z; of the
+    near points mean, min, max of x, y, z (0 where there are none); of the hand rows, the fractions inside the hand
+    and near it (0 without hand rows). ``points``: (m, K + K_h, 5) :func:`grasp_features` rows; ``num_points``: K
+    (None: every row is a closing row)."""
+    k = points.shape[1] if num_points is None else int(num_points)
+    hand_rows = points[:, k:]
+    points = points[:, :k]
     xyz, inside = points[..., :3].astype(np.float64), points[..., 3] > 0.5
     near = np.any(points != 0.0, axis=2)
     k = points.shape[1]
@@ -45,6 +50,9 @@ def pooled_features(points: np.ndarray, width: np.ndarray) -> np.ndarray:
     right = (inside & (xyz[..., 0] > 0)).sum(1) / k
     cols = [width[:, None], inside.mean(1)[:, None], near.mean(1)[:, None], left[:, None], right[:, None]]
     cols += stats(inside, ("mean", "std", "min", "max")) + stats(near, ("mean", "min", "max"))
+    in_hand = (hand_rows[..., 4] > 0.5).mean(1) if hand_rows.shape[1] else np.zeros(len(points))
+    near_hand = np.any(hand_rows != 0.0, axis=2).mean(1) if hand_rows.shape[1] else np.zeros(len(points))
+    cols += [in_hand[:, None], near_hand[:, None]]
     return np.concatenate(cols, axis=1)
 
 
@@ -64,11 +72,11 @@ def baselines(train, valid, feature_params: FeatureParams | None, seed: int) -> 
            "object_rate": score_report(valid, [np.full(len(s.label), float(np.mean(s.label)) if len(s.label) else 0.0)
                                                for s in valid])}
     spec = load_gripper(train[0].gripper)
-    X = pooled_features(*set_features(train, spec, feature_params, seed))
+    X = pooled_features(*set_features(train, spec, feature_params, seed), feature_params.num_points)
     gbt = HistGradientBoostingClassifier(random_state=seed).fit(X, y)
     scores = []
     for s in valid:
-        Xv = pooled_features(*set_features([s], spec, feature_params, seed))
+        Xv = pooled_features(*set_features([s], spec, feature_params, seed), feature_params.num_points)
         scores.append(gbt.predict_proba(Xv)[:, 1] if len(Xv) else np.zeros(0))
     out["gbt"] = score_report(valid, scores)
     return out

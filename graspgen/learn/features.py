@@ -1,11 +1,16 @@
-"""A grasp's input to the evaluator: the object's surface points near the closing region, in the TCP frame.
+"""A grasp's input to the evaluator: the object's surface points near the closing region and near the hand's
+body, in the TCP frame.
 
 TCP frame (ARCHITECTURE.md "Conventions"): origin midway between the pads, z approach, x closing, y = z x x.
 The closing volume is the box swept by the open pads: centred on the TCP, half-extents ``(max_width / 2,
-pad_width / 2, pad_length / 2)`` (:func:`closing_volume`). Per grasp the ``K`` surface points nearest that box
-(Euclidean distance to the box, 0 inside; ties by point index; rows ordered by distance) are kept; a kept point
-farther than ``margin`` from the box is dropped and its row is all zeros (a real point at the origin is inside,
-so a zero row with flag 0 is unambiguous padding). Numpy only.
+pad_width / 2, pad_length / 2)`` (:func:`closing_volume`). The hand's body is the union of the palm's boxes and the
+two fingers' bounding boxes with the jaws fully open (:func:`hand_boxes`): a surface point inside it is a collision
+at placement. Per grasp the ``K`` surface points nearest the closing volume, then the ``K_h`` nearest the hand's
+body, are kept (Euclidean distance to the box or union, 0 inside; ties by point index; each group's rows ordered by
+distance); a kept point farther than ``margin`` from its region is dropped and its row is all zeros (a real point at
+the origin is inside the closing volume, so a zero row with both flags 0 is unambiguous padding). Why the hand: a
+grasp whose palm or finger sits in the object fails however well the pads would close, and the closing region alone
+cannot show it. Numpy only.
 """
 
 from __future__ import annotations
@@ -17,11 +22,14 @@ import numpy as np
 from graspgen.errors import SettingsError
 from graspgen.validation import check_int, check_number
 
-__all__ = ["FEATURE_VERSION", "FeatureParams", "closing_volume", "grasp_features", "object_rng", "set_features",
-           "surface_points"]
+__all__ = ["CHANNELS", "FEATURE_VERSION", "FeatureParams", "closing_volume", "grasp_features", "hand_boxes",
+           "object_rng", "set_features", "surface_points"]
 
-FEATURE_VERSION = 1
+FEATURE_VERSION = 2
 """Bumped whenever the features change; stored in model files and checked on load."""
+
+CHANNELS = 5
+"""Values per row: x, y, z (TCP frame, m), inside the closing volume (1/0), inside the hand's body (1/0)."""
 
 _CHUNK = 512  # grasps per batch: (512, n, 3) float64 is 25 MB at n = 2048
 
@@ -34,18 +42,25 @@ class FeatureParams:
     """Points sampled on each object's surface (area-weighted, with the given rng)."""
     num_points: int = 64
     """K: points nearest the closing region kept per grasp."""
+    hand_points: int = 32
+    """K_h: points nearest the hand's body (:func:`hand_boxes`) kept per grasp after the K; 0 keeps none."""
     margin: float = 0.01
-    """m: how far outside the closing volume a kept point may lie; farther ones become zero rows."""
+    """m: how far outside its region (closing volume or hand) a kept point may lie; farther ones become zero rows."""
 
     def __post_init__(self) -> None:
         check_int("num_surface_points", self.num_surface_points, low=1)
         check_int("num_points", self.num_points, low=1)
+        check_int("hand_points", self.hand_points, low=0)
         check_number("margin", self.margin, low=0.0)
-        if self.num_points > self.num_surface_points:
-            from graspgen.errors import SettingsError
+        for key in ("num_points", "hand_points"):
+            if getattr(self, key) > self.num_surface_points:
+                raise SettingsError(f"{key}: must be <= num_surface_points ({self.num_surface_points}), "
+                                    f"got {getattr(self, key)}")
 
-            raise SettingsError(f"num_points: must be <= num_surface_points ({self.num_surface_points}), "
-                                f"got {self.num_points}")
+    @property
+    def rows(self) -> int:
+        """Rows per grasp: ``num_points + hand_points``."""
+        return self.num_points + self.hand_points
 
 
 def surface_points(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -80,6 +95,42 @@ def closing_volume(gripper) -> np.ndarray:
     return np.array([gripper.max_width / 2, pad_w / 2, pad_l / 2], dtype=np.float64)
 
 
+def hand_boxes(gripper) -> np.ndarray:
+    """(b, 2, 3) float64 lowest and highest corners (m, TCP frame) of the boxes whose union is the hand's body with
+    the jaws fully open: each palm box (``palm_boxes``, the bounding boxes of ``palm_geoms`` where given) and each
+    finger's bounding box. A finger's box starts at the pad's contact face (``x = max_width / 2``) and reaches out
+    through the finger link (``finger_size`` x; with ``finger_geoms`` that extent includes the pad, else the link
+    sits behind a ``pad_size`` x thick pad); it is ``max(finger, pad)`` wide along y and runs along z from the pad's
+    tip (``pad_length / 2``) back ``finger_size`` z. The left finger mirrors the right one (x -> -x)."""
+    half = gripper.max_width / 2.0
+    pad_t, pad_w, pad_l = gripper.pad_size
+    fin_t, fin_w, fin_l = gripper.finger_size
+    outer = half + (fin_t if gripper.finger_geoms else pad_t + fin_t)
+    y = max(fin_w, pad_w) / 2.0
+    boxes = [np.array([[half, -y, pad_l / 2 - fin_l], [outer, y, pad_l / 2]]),
+             np.array([[-outer, -y, pad_l / 2 - fin_l], [-half, y, pad_l / 2]])]
+    boxes += [np.stack(b.bounds) for b in gripper.palm_boxes]
+    return np.stack(boxes).astype(np.float64)
+
+
+def _box_distance(local: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(c, n) Euclidean distance of points ``local`` (c, 3, n) to the box [low, high] (3,), 0 inside."""
+    gap = np.maximum(np.maximum(low[:, None] - local, local - high[:, None]), 0.0)
+    gap *= gap
+    return np.sqrt(gap[:, 0] + gap[:, 1] + gap[:, 2])
+
+
+def _rows(local: np.ndarray, dist: np.ndarray, k: int, margin: float, flags: tuple[np.ndarray, np.ndarray]):
+    """(c, k, 5) rows of the ``k`` points nearest by ``dist`` (c, n): coordinates and the two (c, n) flags; a point
+    farther than ``margin`` is a zero row."""
+    idx = _nearest(dist, k)
+    near = np.take_along_axis(local, idx[:, None, :], axis=2).transpose(0, 2, 1)
+    cols = [np.take_along_axis(f, idx, axis=1)[..., None].astype(np.float64) for f in flags]
+    block = np.concatenate([near, *cols], axis=2)
+    block[np.take_along_axis(dist, idx, axis=1) > margin] = 0.0
+    return block
+
+
 def _nearest(dist: np.ndarray, k: int) -> np.ndarray:
     """(c, k) indices of the k smallest of each row of ``dist`` (c, n), ordered by (distance, index)."""
     kth = np.partition(dist, k - 1, axis=1)[:, k - 1 : k]
@@ -110,10 +161,11 @@ def grasp_features(points: np.ndarray, T_tcp: np.ndarray, width: np.ndarray, gri
 
     Returns
     -------
-    feats : (m, K, 4) float32
-        Per grasp the K points nearest the closing volume: x, y, z in the TCP frame (m) and 1.0 if inside the
-        closing volume else 0.0; rows by distance to the volume (ties by point index); rows of points farther
-        than ``margin`` are zeros.
+    feats : (m, K + K_h, 5) float32
+        Per grasp the K points nearest the closing volume, then the K_h nearest the hand's body (module docstring):
+        x, y, z in the TCP frame (m), 1.0 if inside the closing volume else 0.0, 1.0 if inside the hand's body else
+        0.0; each group's rows by distance to its region (ties by point index); rows of points farther than
+        ``margin`` from their region are zeros.
     width : (m,) float32, m.
     """
     P = np.asarray(points, dtype=np.float64)
@@ -121,25 +173,22 @@ def grasp_features(points: np.ndarray, T_tcp: np.ndarray, width: np.ndarray, gri
     w = np.asarray(width, dtype=np.float64).reshape(-1)
     if len(w) != len(T):
         raise SettingsError(f"width: expected {len(T)} values (one per pose), got {len(w)}")
-    k = params.num_points
-    if len(P) < k:
-        raise SettingsError(f"points: need at least num_points = {k}, got {len(P)}")
+    k, kh = params.num_points, params.hand_points
+    if len(P) < max(k, kh):
+        raise SettingsError(f"points: need at least num_points = {k} and hand_points = {kh}, got {len(P)}")
     half = closing_volume(gripper)
-    out = np.zeros((len(T), k, 4), dtype=np.float32)
+    boxes = hand_boxes(gripper)
+    out = np.zeros((len(T), k + kh, CHANNELS), dtype=np.float32)
     for s in range(0, len(T), _CHUNK):
         Rt = T[s : s + _CHUNK, :3, :3].transpose(0, 2, 1)
         # R^T (p - t), coordinates along axis 1: (c, 3, n) keeps each coordinate contiguous (fast reductions)
         local = Rt @ P.T - (Rt @ T[s : s + _CHUNK, :3, 3:4])
-        outside = np.maximum(np.abs(local) - half[:, None], 0.0)
-        outside *= outside
-        dist = np.sqrt(outside[:, 0] + outside[:, 1] + outside[:, 2])
-        idx = _nearest(dist, k)
-        near = np.take_along_axis(local, idx[:, None, :], axis=2).transpose(0, 2, 1)
-        d = np.take_along_axis(dist, idx, axis=1)
-        keep = d <= params.margin
-        block = np.concatenate([near, (d <= 0.0)[..., None].astype(np.float64)], axis=2)
-        block[~keep] = 0.0
-        out[s : s + _CHUNK] = block
+        closing = _box_distance(local, -half, half)
+        hand = np.min([_box_distance(local, lo, hi) for lo, hi in boxes], axis=0)
+        flags = (closing <= 0.0, hand <= 0.0)
+        out[s : s + _CHUNK, :k] = _rows(local, closing, k, params.margin, flags)
+        if kh:
+            out[s : s + _CHUNK, k:] = _rows(local, hand, kh, params.margin, flags)
     return out, w.astype(np.float32)
 
 
@@ -151,8 +200,8 @@ def object_rng(seed: int, name: str) -> np.random.Generator:
 
 
 def set_features(sets, gripper, params: FeatureParams, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`grasp_features` of every grasp of ``sets`` (ObjectGraspSet list), concatenated in order: (N, K, 4)
-    float32 and (N,) float32. Each object's surface points come from :func:`object_rng` (``seed``, its name)."""
+    """:func:`grasp_features` of every grasp of ``sets`` (ObjectGraspSet list), concatenated in order: (N, K + K_h,
+    5) float32 and (N,) float32. Each object's surface points come from :func:`object_rng` (``seed``, its name)."""
     feats, widths = [], []
     for s in sets:
         pts = surface_points(s.vertices, s.faces, params.num_surface_points, object_rng(seed, s.name))
@@ -160,5 +209,5 @@ def set_features(sets, gripper, params: FeatureParams, seed: int) -> tuple[np.nd
         feats.append(f)
         widths.append(w)
     if not feats:
-        return np.zeros((0, params.num_points, 4), np.float32), np.zeros(0, np.float32)
+        return np.zeros((0, params.rows, CHANNELS), np.float32), np.zeros(0, np.float32)
     return np.concatenate(feats), np.concatenate(widths)

@@ -1,7 +1,7 @@
 """The grasp evaluator: a small PointNet (the 6-DOF GraspNet evaluator / PointNetGPD family). Needs torch.
 
-Sizes: a shared per-point MLP 4 -> 64 -> 128 -> 256 (ReLU after each layer), a max-pool over the K points, the
-width appended (257), a head 257 -> 128 -> 1 (ReLU between): 74,817 parameters. Lengths enter divided by
+Sizes: a shared per-point MLP 5 -> 64 -> 128 -> 256 (ReLU after each layer), a max-pool over the rows, the
+width appended (257), a head 257 -> 128 -> 1 (ReLU between): 74,881 parameters at 5 channels. Lengths enter divided by
 ``length_scale`` (m; half the gripper's open width, so the closing volume spans about [-1, 1] along x).
 """
 
@@ -20,16 +20,17 @@ __all__ = ["PointNetEvaluator"]
 
 
 class PointNetEvaluator(nn.Module):
-    """forward(points (b, K, 4) float32, width (b,) float32 m) -> (b,) success logits."""
+    """forward(points (b, rows, channels) float32, width (b,) float32 m) -> (b,) success logits. A row is x, y, z
+    (m) and ``channels - 3`` flags (:data:`graspgen.learn.features.CHANNELS`)."""
 
-    def __init__(self, length_scale: float = 0.04) -> None:
+    def __init__(self, length_scale: float = 0.04, channels: int = 5) -> None:
         super().__init__()
         self.length_scale = float(length_scale)
-        self.point_mlp = nn.Sequential(nn.Linear(4, 64), nn.ReLU(), nn.Linear(64, 128), nn.ReLU(),
+        self.point_mlp = nn.Sequential(nn.Linear(int(channels), 64), nn.ReLU(), nn.Linear(64, 128), nn.ReLU(),
                                        nn.Linear(128, 256), nn.ReLU())
         self.head = nn.Sequential(nn.Linear(257, 128), nn.ReLU(), nn.Linear(128, 1))
 
     def forward(self, points: torch.Tensor, width: torch.Tensor) -> torch.Tensor:
         xyz = points[..., :3] / self.length_scale
-        h = self.point_mlp(torch.cat([xyz, points[..., 3:4]], dim=-1)).amax(dim=1)
+        h = self.point_mlp(torch.cat([xyz, points[..., 3:]], dim=-1)).amax(dim=1)
         return self.head(torch.cat([h, (width / self.length_scale)[:, None]], dim=1)).squeeze(1)

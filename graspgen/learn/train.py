@@ -27,7 +27,7 @@ except ImportError:  # one clear error naming the install, not a bare ModuleNotF
 
 from graspgen.errors import InputError, SettingsError
 from graspgen.io.atomic import atomic_path
-from graspgen.learn.features import FEATURE_VERSION, FeatureParams, set_features
+from graspgen.learn.features import CHANNELS, FEATURE_VERSION, FeatureParams, set_features
 from graspgen.learn.model import PointNetEvaluator
 from graspgen.validation import check_bool, check_int, check_number
 
@@ -71,7 +71,7 @@ class TrainParams:
 
 
 class GraspDataset(torch.utils.data.Dataset):
-    """The featurised grasps of a list of ObjectGraspSet: item i = (points (K, 4), width (), label ()) tensors."""
+    """The featurised grasps of a list of ObjectGraspSet: item i = (points (rows, 5), width (), label ()) tensors."""
 
     def __init__(self, sets, gripper, feature_params: FeatureParams, seed: int = 0) -> None:
         feats, widths = set_features(sets, gripper, feature_params, seed)
@@ -144,7 +144,7 @@ class TrainedModel:
 
 def _augment(points: torch.Tensor, g: torch.Generator) -> torch.Tensor:
     flip = torch.rand(len(points), generator=g) < 0.5
-    sign = torch.ones(len(points), 1, 4)
+    sign = torch.ones(len(points), 1, points.shape[-1])
     sign[flip, :, :2] = -1.0
     return points * sign
 
@@ -172,7 +172,7 @@ def train_evaluator(sets, params: TrainParams, feature_params: FeatureParams | N
         g = torch.Generator().manual_seed(params.seed)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(torch.randint(0, 2**62, (1,), generator=g)))  # nn.Linear init draws globally
-            module = PointNetEvaluator(length_scale=spec.max_width / 2)
+            module = PointNetEvaluator(length_scale=spec.max_width / 2, channels=CHANNELS)
         opt = torch.optim.Adam(module.parameters(), lr=params.learning_rate, weight_decay=params.weight_decay)
         loss_fn = torch.nn.BCEWithLogitsLoss()
         batches = BalancedBatches(data.label, params.batch_size, g)
@@ -264,7 +264,7 @@ def load_model(path) -> TrainedModel:
     if meta["feature_version"] != FEATURE_VERSION:
         raise InputError(f"{where}: features of version {meta['feature_version']}, this graspgen makes version "
                          f"{FEATURE_VERSION}; train the model again")
-    module = PointNetEvaluator(length_scale=meta["length_scale"])
+    module = PointNetEvaluator(length_scale=meta["length_scale"], channels=CHANNELS)
     module.load_state_dict(blob["state"])
     return TrainedModel(module.eval(), FeatureParams(**meta["feature_params"]), meta["gripper"],
                         dict(meta["train_info"]), dict(meta.get("physics") or {}))
