@@ -231,7 +231,10 @@ def main() -> None:
                     help="also gen probe pick on every validation mesh: top 10 of N candidates, network (c)")
     ap.add_argument("--exclude", nargs="*", default=[], metavar="PATTERN",
                     help="leave out the files whose stem matches (fnmatch), from every source alike")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=0, help="the sample of ACRONYM's poses and, by default, the rest")
+    ap.add_argument("--train-seed", type=int, default=None,
+                    help="the networks' training draws and the picks' candidates (default: --seed); another value "
+                         "on the same sample (whose sim labels are cached) measures the training noise")
     ap.add_argument("--out", type=Path, default=HERE / "results_learnability.json")
     args = ap.parse_args()
 
@@ -262,25 +265,27 @@ def main() -> None:
           f"labels read/simulated in {label_seconds:.0f} s")
     valid = {"flex": flex_valid, "sim": sim_valid, "firm": firm_valid}
     models: dict = {}
+    train_seed = args.seed if args.train_seed is None else args.train_seed
     table = cross_source({"a_flex": flex_train, "b_sim": sim_train, "b_firm": firm_train, **ours}, valid,
-                         args.seed, models)
+                         train_seed, models)
     _print_table(table)
     result = {"learn": str(args.learn), "per_object": args.per_object, "excluded": args.exclude,
               "valid_fraction": VALID_FRACTION, "salt": SALT, "train_objects": sorted(s.name for s in flex_train),
               "valid_objects": sorted(s.name for s in flex_valid), "cross_source": table,
+              "seed": args.seed, "train_seed": train_seed,
               "label_seconds": label_seconds, "platform": platform.platform(), "cpus": os.cpu_count()}
     if args.pick:
         source = next(iter(ours), "b_sim")
         print(f"\npick on the validation meshes, network {source}: top 10 of {args.pick} candidates vs 10 random")
         valid_files = [f for f in files if _is_valid(_group(f))]
-        rows = pick_on_valid(models[source], valid_files, args.pick, args.seed, args.jobs)
+        rows = pick_on_valid(models[source], valid_files, args.pick, train_seed, args.jobs)
         result["pick"] = {"network": source, "candidates": args.pick, "objects": rows,
                           **{k: float(np.mean([r[k] for r in rows])) for k in ("top_success", "random_success",
                                                                                 "top_firm", "random_firm")}}
         print(f"  mean: top {result['pick']['top_success']:.3f}, random {result['pick']['random_success']:.3f}")
     if args.curve:
         print("\nlearning curve, trained on (b) sim labels:")
-        result["learning_curve"] = learning_curve(sim_train, valid, args.seed)
+        result["learning_curve"] = learning_curve(sim_train, valid, train_seed)
     args.out.write_text(json.dumps(result, indent=1))
     print(f"\nwrote {args.out}")
 
