@@ -4,7 +4,7 @@ One task per mesh file (the bundled set in ``assets/objects``, the globs in ``ob
 object manifest ``objects.manifest``: :func:`graspgen.io.objects.read_object_manifest`) and per procedural object
 (``objects.procedural``: :mod:`graspgen.geometry.procedural`). Each task
 loads, fixes units, repairs, computes mass properties, decomposes into convex parts (CoACD, cached) and finds
-physics-checked stable poses (:mod:`graspgen.geometry.prepare`), then writes one HDF5 shard::
+physics-checked stable poses (:mod:`graspgen.workflows.prepare`), then writes one HDF5 shard::
 
     /mesh/vertices (v, 3) float64 m         /mesh/faces (f, 3) int32
     /convex/vertices (V, 3) float64 m        /convex/faces (F, 3) int32   (all parts, concatenated)
@@ -41,13 +41,13 @@ import numpy as np
 
 from graspgen.errors import InputError
 from graspgen.geometry.convex import CoacdParams
-from graspgen.geometry.prepare import prepare_object
 from graspgen.geometry.procedural import ProceduralParams, ProceduralShape, build_mesh, draw_shapes, shape_from_spec
 from graspgen.geometry.stable_poses import StablePoseParams
 from graspgen.io.acronym import obj_text
 from graspgen.io.files import write_h5
 from graspgen.io.objects import object_tree, read_object_manifest
 from graspgen.validation import check
+from graspgen.workflows.prepare import prepare_object
 from pipeline.config import to_dict
 from pipeline.errors import ConfigError
 from pipeline.keys import KEY_OMIT_DEFAULT

@@ -14,9 +14,9 @@ import pytest
 import trimesh
 
 from graspgen.errors import InputError, SettingsError
-from graspgen.geometry.prepare import prepare_object
 from graspgen.io.objects import MANIFEST_COLUMNS, ManifestEntry, read_object_manifest
 from graspgen.io.scenes import read_scene
+from graspgen.workflows.prepare import prepare_object
 from graspgen.workflows.scenes import make_scene
 from pipeline.config import load_config
 from pipeline.errors import ConfigError
