@@ -14,12 +14,12 @@ import hashlib
 import json
 import math
 import types
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pipeline.config import FLATTEN, to_dict
+from shared_utils.digest import sha256_file as sha256_file  # re-exported: one definition, below engine and library
 
 KEY_SCHEME = 2
 """Bump when the key recipe itself changes: every output becomes stale. 2: keys cover code and packages."""
@@ -86,15 +86,6 @@ def _omitted(obj: Any, field: dataclasses.Field) -> bool:
 def sha256_text(text: str) -> str:
     """Hex sha256 of a UTF-8 string."""
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
-    """Hex sha256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def params_digest(params: Any) -> str:
