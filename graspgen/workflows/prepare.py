@@ -23,6 +23,7 @@ give bitwise identical arrays. Randomness only ever comes from the ``numpy.rando
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +39,7 @@ from graspgen.geometry.units import normalize_units
 from graspgen.sim.stable_poses import stable_poses
 from graspgen.validation import check_number, check_rng
 
-__all__ = ["PreparedObject", "prepare_object"]
+__all__ = ["REPAIR_NOT_WARNED", "PreparedObject", "object_warnings", "prepare_object"]
 
 
 def _check_weight(density: float | None, mass: float | None) -> None:
@@ -126,3 +127,18 @@ def prepare_object(
         stable_probabilities=probabilities,
         warnings=tuple(warnings),
     )
+
+
+REPAIR_NOT_WARNED = ("duplicate vertices", "not watertight after repair")
+"""Repair notes that are no warning: merging duplicate vertices changes no geometry (STL files store every
+triangle's corners apart), and a mesh left open already gets the convex-hull mass warning."""
+
+
+def object_warnings(path: Path, warnings: Sequence[str], repair_notes: Sequence[str]) -> list[str]:
+    """What a user should hear about one prepared mesh: the unit guess and mass notes of mesh preparation, and
+    the repairs that changed its geometry, each naming the file."""
+    out = list(warnings)
+    repairs = [n for n in repair_notes if not any(skip in n for skip in REPAIR_NOT_WARNED)]
+    if repairs:
+        out.append(f"{path.name}: mesh repaired: {'; '.join(repairs)}")
+    return out
