@@ -39,10 +39,15 @@ from graspgen.errors import InputError
 from graspgen.geometry.procedural import build_mesh, shape_from_spec
 from graspgen.io.acronym import obj_text
 from graspgen.io.files import write_h5
-from graspgen.io.object_sources import ASSETS as ASSETS
-from graspgen.io.object_sources import ObjectSelectionError, ObjectSource, ObjectsParams, left_out_by_include
-from graspgen.io.object_sources import catalog as catalog
-from graspgen.io.object_sources import object_sources as _object_sources
+from graspgen.io.object_sources import (  # ASSETS, ObjectsParams and catalog: re-exported for the config and tests
+    ASSETS,
+    ObjectSelectionError,
+    ObjectSource,
+    ObjectsParams,
+    catalog,
+    left_out_by_include,
+    object_sources,
+)
 from graspgen.io.objects import object_tree
 from graspgen.workflows.prepare import object_warnings, prepare_object
 from pipeline.config import to_dict
@@ -50,12 +55,13 @@ from pipeline.errors import ConfigError
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
 
-__all__ = ["ASSETS", "ObjectsParams", "ObjectsStage", "catalog", "discover", "left_out_by_include", "object_sources",
-           "object_warnings"]
+__all__ = ["ASSETS", "ObjectsParams", "ObjectsStage", "catalog", "discover", "left_out_by_include", "object_warnings",
+           "selected_objects"]
 
 
-def object_sources(params: ObjectsParams) -> list[ObjectSource]:
-    """Every object the params select, sorted by name (:func:`graspgen.io.object_sources.object_sources`).
+def selected_objects(params: ObjectsParams) -> list[ObjectSource]:
+    """Every object the params select, sorted by name: :func:`graspgen.io.object_sources.object_sources` with the
+    engine's error.
 
     Raises
     ------
@@ -64,21 +70,21 @@ def object_sources(params: ObjectsParams) -> list[ObjectSource]:
         same message).
     """
     try:
-        return _object_sources(params)
+        return object_sources(params)
     except ObjectSelectionError as exc:
         raise ConfigError(str(exc)) from None
 
 
 def discover(params: ObjectsParams) -> list[tuple[str, Path, float | None]]:
     """(name, path, density) of every object the params select, sorted by name; the density is None for a
-    manifest object given by its mass (:func:`object_sources` has everything).
+    manifest object given by its mass (:func:`selected_objects` has everything).
 
     Raises
     ------
     ConfigError
-        See :func:`object_sources`.
+        See :func:`selected_objects`.
     """
-    return [(s.name, s.path, s.density) for s in object_sources(params)]
+    return [(s.name, s.path, s.density) for s in selected_objects(params)]
 
 
 class ObjectsStage(GraspStage):
@@ -90,7 +96,7 @@ class ObjectsStage(GraspStage):
     def tasks(self, params: ObjectsParams, upstream: Upstream) -> list[Task]:
         return [
             Task(id=source.name, payload=source.payload(), inputs=source.inputs())
-            for source in object_sources(params)
+            for source in selected_objects(params)
         ]
 
     def plan_warnings(self, params: ObjectsParams, upstream: Upstream) -> list[str]:
