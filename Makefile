@@ -40,9 +40,9 @@ repro: $(STAMP) ## Check byte-reproducibility: jobs 1 vs 2, and kill -9 then res
 	$(BIN)/python -m pipeline.repro --config configs/smoke.yaml --workdir build/repro -- $(BIN)/gen
 
 lint: $(STAMP) ## ruff, the layer contracts (import-linter) and the module/function sizes (see ARCHITECTURE.md)
-	$(BIN)/ruff check pipeline graspgen stages graspgen_cli tests bench studies assets tools
+	$(BIN)/ruff check pipeline graspgen stages graspgen_cli shared_utils tests bench studies assets tools
 	$(BIN)/lint-imports --no-cache
-	$(BIN)/python tools/check_sizes.py graspgen pipeline stages graspgen_cli
+	$(BIN)/python tools/check_sizes.py graspgen pipeline stages graspgen_cli shared_utils
 
 clean: ## Remove OUT and build products (keeps .venv and the CoACD cache in .cache)
 	rm -rf $(OUT) build

@@ -43,10 +43,10 @@ import trimesh  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 
 from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal, uses_embree  # noqa: E402
-from graspgen.geometry.prepare import prepare_object  # noqa: E402
 from graspgen.geometry.stable_poses import StablePoseParams  # noqa: E402
 from graspgen.grippers import DEFAULT_GRIPPER, load_gripper  # noqa: E402
 from graspgen.sim.prefilter import CollisionChecker, PrefilterParams  # noqa: E402
+from graspgen.workflows.prepare import prepare_object  # noqa: E402
 from stages.objects import catalog  # noqa: E402
 
 BAR_CANDIDATES_PER_S = 5000.0

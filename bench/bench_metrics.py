@@ -1,7 +1,7 @@
 """Epsilon throughput (ARCHITECTURE.md, Performance bars: >= 2,000 grasps per second per core) and the robustness
 stage's cost per grasp.
 
-Scene: the bundled box (50 x 70 x 120 mm, 0.27 kg) prepared with :func:`graspgen.geometry.prepare.prepare_object`, in
+Scene: the bundled box (50 x 70 x 120 mm, 0.27 kg) prepared with :func:`graspgen.workflows.prepare.prepare_object`, in
 its most probable stable pose (flat on its 70 x 120 mm face) on the scenes stage's table
 (:func:`graspgen.sim.scene_model.build_scene_spec`), with the Robotiq 2F-85 attached, compiled once into a
 :class:`graspgen.sim.lift.LiftSimulator` (default :class:`graspgen.sim.protocols.LiftParams`), object friction 0.5.
@@ -38,7 +38,6 @@ import mujoco
 import numpy as np
 
 from graspgen.geometry.contacts import closing_contacts
-from graspgen.geometry.prepare import prepare_object
 from graspgen.grippers import DEFAULT_GRIPPER, load_gripper
 from graspgen.io.objects import ObjectRecord
 from graspgen.quality.contact_set import contact_set
@@ -46,11 +45,12 @@ from graspgen.quality.epsilon import EpsilonParams, grasp_epsilon
 from graspgen.quality.perturbation import DRAWS_PER_COPY, RobustnessParams
 from graspgen.sim.gripper_model import attach_gripper
 from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.perturbed_copies import rollout_with_object_pose
 from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams
 from graspgen.sim.scene_model import build_scene_spec, object_body_name, placed_object
 from graspgen.sim.support import SupportParams
 from graspgen.workflows.metrics import object_geometry
-from graspgen.workflows.perturbed_copies import rollout_with_object_pose
+from graspgen.workflows.prepare import prepare_object
 from graspgen.workflows.robustness import grasp_robustness
 from stages.objects import ASSETS, catalog
 

@@ -44,7 +44,6 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 
 from graspgen.geometry.antipodal import AntipodalParams  # noqa: E402
-from graspgen.geometry.prepare import prepare_object  # noqa: E402
 from graspgen.geometry.stable_poses import StablePoseParams  # noqa: E402
 from graspgen.io.arrow import column_array  # noqa: E402
 from graspgen.io.objects import ObjectRecord  # noqa: E402
@@ -52,6 +51,7 @@ from graspgen.workflows.evaluate import evaluate_grasps  # noqa: E402
 from graspgen.workflows.evaluate_settings import CHEAP_COACD, EvaluateParams  # noqa: E402
 from graspgen.workflows.object_grasps import label_object_grasps  # noqa: E402
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams  # noqa: E402
+from graspgen.workflows.prepare import prepare_object  # noqa: E402
 from stages.objects import ASSETS, catalog  # noqa: E402
 
 GOAL_PER_CORE_HOUR = 100_000.0

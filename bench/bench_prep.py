@@ -2,7 +2,7 @@
 
 For every ACRONYM file of the learning set (``/work/shared/learn/acronym``: ShapeNetSem meshes of bowls, mugs,
 knives, bottles, hats, scissors; README there), its mesh is prepared by
-:func:`graspgen.geometry.prepare.prepare_object` at the file's scale, under two settings:
+:func:`graspgen.workflows.prepare.prepare_object` at the file's scale, under two settings:
 
 * ``pipeline``: what the ``objects`` stage passes (``stages.objects.ObjectsParams()``: its CoACD and stable-pose
   settings, with the physics settle check; density 700 kg/m^3, at most 0.5 m);
@@ -92,7 +92,7 @@ def prepare_kwargs(mode: str) -> dict:
 
 def child(mesh: str, scale: float, mode: str, profile: str | None) -> dict:
     """Prepare one mesh in this process and time it (and its steps)."""
-    import graspgen.geometry.prepare as prepare
+    import graspgen.workflows.prepare as prepare
     from pipeline.worker import task_cpu_seconds
 
     steps = {"decomposition": 0.0, "stable_poses": 0.0}

@@ -1,7 +1,7 @@
 """Grasp-and-lift rollout throughput (ARCHITECTURE.md, Performance bars: >= 20 rollouts/s per core, report the ratio to
 the floor).
 
-For each bundled object (box, can): prepare it with :func:`graspgen.geometry.prepare.prepare_object`, rest it in its
+For each bundled object (box, can): prepare it with :func:`graspgen.workflows.prepare.prepare_object`, rest it in its
 most probable stable pose on a table (``support/table``), settle it, attach the default gripper (Robotiq 2F-85), and
 roll out random top-down grasps across it with :class:`graspgen.sim.lift.LiftSimulator` (default :class:`LiftParams`,
 once without and once with the shake). Reported per object:
@@ -52,13 +52,13 @@ import mujoco
 import numpy as np
 
 from graspgen.geometry.convex import CoacdParams
-from graspgen.geometry.prepare import PreparedObject, prepare_object
 from graspgen.grippers import DEFAULT_GRIPPER, load_gripper
 from graspgen.sim.gripper_model import attach_gripper
 from graspgen.sim.gripper_state import set_gripper_pose
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.physics import physics_options
 from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams
+from graspgen.workflows.prepare import PreparedObject, prepare_object
 
 ROOT = Path(__file__).resolve().parents[1]
 OBJECTS = ROOT / "assets" / "objects"

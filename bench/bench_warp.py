@@ -42,6 +42,7 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import platform
 import resource
 import signal
@@ -56,11 +57,12 @@ from graspgen.sim.warp_backend import WARP_PROTOCOLS, WarpParams, import_warp
 from graspgen.workflows.evaluate_settings import CHEAP_COACD, EvaluateParams
 from graspgen.workflows.evaluation_world import evaluation_world
 from graspgen.workflows.grasp_files import read_grasp_file
-from studies.calibration import add_calibration_option
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results_warp.json"
 LEARN = ROOT.parent / "shared" / "learn" / "acronym"
+CALIBRATION_ENV = "GRASPGEN_CALIBRATION"
+"""Environment variable naming the calibration folder (the one the studies read, ``studies/calibration.py``)."""
 GPU_BATCHES = "256,512,1024,2048,4096,8192"
 CPU_BATCHES = "16,64,256"
 
@@ -324,10 +326,20 @@ def _files(args) -> list[tuple[Path, int]]:
     return files[args.skip:][: args.limit if args.limit > 0 else None]
 
 
+def _calibration_default() -> Path:
+    """Default of ``--calibration``: ``acronym_more/`` of ``$GRASPGEN_CALIBRATION``, else of ``../shared/calibration``
+    beside the repository."""
+    env = os.environ.get(CALIBRATION_ENV)
+    return (Path(env) if env else ROOT.parent / "shared" / "calibration") / "acronym_more"
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default=None, help="Warp device (default: cuda:0 if present, else cpu)")
-    add_calibration_option(ap, "acronym_more")
+    default = _calibration_default()
+    ap.add_argument("--calibration", type=Path, default=default,
+                    help=f"calibration folder (default: ${CALIBRATION_ENV}, else ../shared/calibration beside the "
+                    f"repository, its acronym_more/; now {default})")
     ap.add_argument("--objects", type=int, default=5, help="calibration ACRONYM files (sorted) used for the agreement")
     ap.add_argument("--grasps", type=int, default=100, help="evenly spaced grasps per calibration file")
     ap.add_argument("--learn", type=Path, default=LEARN, help="folder of the learning set's ACRONYM files")

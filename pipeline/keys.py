@@ -14,12 +14,13 @@ import hashlib
 import json
 import math
 import types
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pipeline.config import FLATTEN, to_dict
+from shared_utils.digest import sha256_file as sha256_file  # re-exported: one definition, below engine and library
+from shared_utils.keys import KEY_OMIT_DEFAULT as KEY_OMIT_DEFAULT  # re-exported: the library's settings set it
 
 KEY_SCHEME = 2
 """Bump when the key recipe itself changes: every output becomes stale. 2: keys cover code and packages."""
@@ -29,11 +30,6 @@ def canonical_json(obj: Any) -> str:
     """Compact, sorted-key JSON of ``obj`` (dataclasses and tuples allowed); floats in shortest repr form."""
     return json.dumps(_jsonable(obj), sort_keys=True, separators=(",", ":"), allow_nan=False)
 
-
-KEY_OMIT_DEFAULT = "key_omit_default"
-"""Field metadata flag: a settings field added after datasets were made with its section, left out of the key
-while it holds its default (``dataclasses.field(default=None, metadata={KEY_OMIT_DEFAULT: True})``), so adding it
-keeps the keys and random draws of every config that does not set it."""
 
 _PLAIN = (str, int, bool, type(None))
 """Values that are their own JSON form (most of a key's parts are strings): returned before the general walk."""
@@ -86,15 +82,6 @@ def _omitted(obj: Any, field: dataclasses.Field) -> bool:
 def sha256_text(text: str) -> str:
     """Hex sha256 of a UTF-8 string."""
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-def sha256_file(path: str | Path, chunk: int = 1 << 20) -> str:
-    """Hex sha256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def params_digest(params: Any) -> str:

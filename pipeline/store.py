@@ -16,19 +16,23 @@ simply redoes that task (and writes the same bytes again). A manifest line cut s
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import fcntl
 import json
 import os
 import socket
-import tempfile
 from collections.abc import Collection, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 from pipeline.errors import LockError
-from pipeline.keys import sha256_file
+
+# Atomic writes live in shared_utils, below the engine and the library alike; re-exported as this module's own.
+from shared_utils.atomic import TEMP_SUFFIX as TEMP_SUFFIX
+from shared_utils.atomic import atomic_path as atomic_path
+from shared_utils.atomic import file_mode as file_mode
+from shared_utils.atomic import write_text_atomic as write_text_atomic
+from shared_utils.digest import sha256_file
 
 MANIFEST = "manifest.jsonl"
 SHARDS = "shards"
@@ -136,45 +140,6 @@ class Entry:
 def shard_path(stage_dir: Path, key: str, ext: str) -> Path:
     """Where the shard of ``key`` lives: ``<stage_dir>/<key[:2]>/<key>.<ext>``."""
     return stage_dir / key[:2] / f"{key}.{ext}"
-
-
-TEMP_SUFFIX = ".tmp"
-"""Suffix of the temp files of :func:`atomic_path` (named ``.<final name>.<random>.tmp``)."""
-
-
-def file_mode() -> int:
-    """The mode a new file gets under the current umask (0644 under 022), as ``open()`` would give it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-@contextlib.contextmanager
-def atomic_path(final: Path) -> Iterator[Path]:
-    """Yield a temp path in ``final``'s folder; on success move it onto ``final`` with ``os.replace``.
-
-    The temp file is removed if the body raises, so a failed write never leaves a partial shard behind. The file
-    gets the mode the umask gives (``mkstemp`` alone would make it 0600: unreadable to colleagues on a shared disk).
-    """
-    final.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=TEMP_SUFFIX, dir=final.parent)
-    os.fchmod(fd, file_mode())
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        yield tmp_path
-        with open(tmp_path, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp_path, final)
-    finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write a small text file atomically."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
 
 
 class Manifest:

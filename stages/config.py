@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 
 from graspgen.grippers import load_gripper
+from graspgen.io.object_sources import ObjectsParams
+from graspgen.learn.probe_settings import ProbeParams
 from graspgen.quality.contact_noise import MetricsParams
 from graspgen.quality.perturbation import RobustnessParams
 from graspgen.validation import check
@@ -15,8 +17,6 @@ from graspgen.workflows.scene_grasps import GraspsParams
 from graspgen.workflows.scene_params import ScenesParams
 from pipeline.config import RunConfig
 from stages.dataset import DatasetParams
-from stages.objects import ObjectsParams
-from stages.probe import ProbeParams
 
 
 @dataclasses.dataclass(frozen=True)

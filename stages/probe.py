@@ -24,7 +24,6 @@ gives the same bytes for any number of workers, on this machine's torch build.
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import time
 from pathlib import Path
@@ -37,9 +36,8 @@ from graspgen.errors import MissingDependencyError
 from graspgen.io.objects import read_object
 from graspgen.io.probe_files import clean_report, write_probe_shard
 from graspgen.learn import require_torch
-from graspgen.learn.features import FeatureParams
+from graspgen.learn.probe_settings import ProbeParams
 from graspgen.learn.sources import ObjectGraspSet, held_out, label_column, record_physics
-from graspgen.validation import check, check_int, check_number
 from pipeline.errors import ConfigError
 from pipeline.stage import RunContext, Task, Upstream
 from stages.base import GraspStage
@@ -48,54 +46,6 @@ __all__ = ["ProbeParams", "ProbeStage", "object_set"]
 
 TASK = "probe"
 """The stage's one task (and the dataset stage's name for it)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class ProbeParams:
-    """Settings of the ``probe`` stage (config section ``probe``): the learnability check of the labels."""
-
-    enabled: bool = True
-    """Train the probe and publish its model and report with the dataset (needs torch and scikit-learn: ``pip
-    install -e '.[learn]'``); false: the card says "Learnability: not run"."""
-    valid_fraction: float = 0.3
-    """Share of the objects held out for scoring, in (0, 1): an object is held out when the first 32 bits of
-    sha256(salt + name), as a fraction of 2^32, are below it (so adding objects moves none)."""
-    salt: str = "probe"
-    """Text prefixed to each name before hashing: another salt, another split."""
-    epochs: int = 10
-    """Passes over the training grasps. Default config (12 objects, 9,390 grasps, 5,600 trained on): the task takes
-    about 45 s of one core at 10 (held-out ROC-AUC 0.83, mean per-object AUC 0.87), 35 s at 1."""
-    batch_size: int = 128
-    """Grasps per batch (balanced: half successes, half failures)."""
-    learning_rate: float = 1e-3
-    """Adam's learning rate."""
-    num_points: int = 64
-    """Surface points per grasp: those nearest the closing region, in the TCP frame (the network's input)."""
-    num_surface_points: int = 2048
-    """Points sampled on each object's surface (area-weighted) that the per-grasp points are chosen from."""
-    seed: int = 0
-    """Another integer gives other training draws (initial weights, batches, surface points) on the same data: the
-    spread of the scores over seeds is their noise. The draws come from the task's generator, which every key of
-    this section (and ``run.seed``) seeds."""
-
-    def __post_init__(self) -> None:
-        check("enabled", isinstance(self.enabled, bool), "be true or false", self.enabled)
-        object.__setattr__(self, "valid_fraction", check_number("valid_fraction", self.valid_fraction, low=0.0,
-                                                                high=1.0, low_open=True, high_open=True))
-        check("salt", isinstance(self.salt, str), "be a string", self.salt)
-        for key in ("epochs", "batch_size", "num_points", "num_surface_points"):
-            object.__setattr__(self, key, check_int(key, getattr(self, key), low=1))
-        check("batch_size", self.batch_size % 2 == 0, "be even (half successes, half failures)", self.batch_size)
-        check("num_surface_points", self.num_surface_points >= self.num_points,
-              f"be >= num_points ({self.num_points})", self.num_surface_points)
-        object.__setattr__(self, "learning_rate", check_number("learning_rate", self.learning_rate, low=0.0,
-                                                               low_open=True))
-        object.__setattr__(self, "seed", check_int("seed", self.seed, low=0))
-
-    @property
-    def features(self) -> FeatureParams:
-        """The network's input: :class:`graspgen.learn.features.FeatureParams`."""
-        return FeatureParams(num_surface_points=self.num_surface_points, num_points=self.num_points)
 
 
 def object_set(name: str, upstream: Upstream) -> ObjectGraspSet:
@@ -176,17 +126,13 @@ class ProbeStage(GraspStage):
         out: Path,
         ctx: RunContext,
     ) -> dict[str, Any]:
-        from graspgen.learn.probe import ProbeParams as LearnProbeParams
         from graspgen.learn.probe import run_probe
-        from graspgen.learn.train import TrainParams, save_model
+        from graspgen.learn.train import save_model
 
         sets = [object_set(name, upstream) for name in task.payload["objects"]]
-        train = TrainParams(epochs=params.epochs, batch_size=params.batch_size, learning_rate=params.learning_rate,
-                            seed=int(rng.integers(0, 2**31 - 1)), threads=1)
-        probe = LearnProbeParams(valid_fraction=params.valid_fraction, salt=params.salt, train=train,
-                                 features=params.features)
+        seed = int(rng.integers(0, 2**31 - 1))
         start = time.perf_counter()
-        model, report = run_probe(sets, probe)
+        model, report = run_probe(sets, params, seed=seed)
         buffer = io.BytesIO()
         save_model(model, buffer)  # the same model -> the same bytes, in any process (graspgen.io.probe_files)
         model_bytes = buffer.getvalue()

@@ -20,7 +20,7 @@ import numpy as np
 import trimesh
 
 import graspgen.geometry.convex as convex
-import graspgen.geometry.prepare as prepare
+import graspgen.workflows.prepare as prepare
 from bench.bench_prep import LEARN, files, prepare_kwargs
 from pipeline.worker import task_cpu_seconds
 

@@ -1,7 +1,7 @@
 """Hull slack: how far the convex parts MuJoCo collides stand out of the true surface, per CoACD setting.
 
 For each calibration object (every ACRONYM file under the calibration folder, its mesh at the file's scale) and
-each bundled object (``assets/objects``), the mesh is prepared as :func:`graspgen.geometry.prepare.prepare_object`
+each bundled object (``assets/objects``), the mesh is prepared as :func:`graspgen.workflows.prepare.prepare_object`
 prepares it (load, repair, units: the same bytes, so the same CoACD cache entries as ``gen evaluate`` and the
 objects stage), decomposed with each candidate setting below and measured with
 :func:`graspgen.geometry.convex.hull_slack` (the union's boundary, area-sampled: max and 95th percentile of the

@@ -2,7 +2,7 @@
 
 The mug of the calibration folder's ``acronym_mug/`` (its README: ShapeNetSem mesh under ``meshes/``, scaled by the
 ACRONYM file's ``object/scale``; mass and friction from the file) is prepared like ``gen evaluate`` prepares it
-(:func:`graspgen.geometry.prepare.prepare_object`, the cheap CoACD of
+(:func:`graspgen.workflows.prepare.prepare_object`, the cheap CoACD of
 :data:`graspgen.workflows.evaluate_settings.CHEAP_COACD`, cached in ``.cache/coacd``) and labelled with the Panda and
 the ``acronym`` protocol up to 1,000 positives and 1,000 negatives (``--positives``, ``--negatives``; at most
 ``--max-candidates`` 20,000 rollouts).
@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 
-from graspgen.geometry.prepare import prepare_object
 from graspgen.geometry.stable_poses import StablePoseParams
 from graspgen.io.acronym import read_acronym
 from graspgen.io.arrow import column_array
@@ -38,6 +37,7 @@ from graspgen.sim.protocols import OUTCOME_NAMES
 from graspgen.workflows.evaluate_settings import CHEAP_COACD
 from graspgen.workflows.object_grasps import label_object_grasps
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
+from graspgen.workflows.prepare import prepare_object
 from studies.calibration import REPO, STUDIES, add_calibration_option
 
 COLLISIONS = ("collision_with_ground", "collision_with_target", "collision_with_clutter")

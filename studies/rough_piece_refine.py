@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import graspgen.geometry.convex as convex
-import graspgen.geometry.prepare as prepare
+import graspgen.workflows.prepare as prepare
 from bench.bench_prep import LEARN, files, prepare_kwargs
 from graspgen.geometry.slack import rough_parts
 from pipeline.worker import task_cpu_seconds

@@ -1,7 +1,9 @@
-"""Step 6 of mesh preparation: the poses in which an object rests on a table, checked in a short MuJoCo drop.
+"""Step 6 of mesh preparation, the geometry: the poses in which an object rests on a table.
 
-:func:`stable_poses` takes the quasi-static resting faces of the convex hull, groups them into pose classes and
-drops each 1 mm onto a plane (:func:`build_settle_model`, :func:`settle_pose`) to keep the pose it settles into.
+:func:`pose_candidates` takes the quasi-static resting faces of the convex hull and groups them into pose classes;
+:func:`merge_settled` replaces each candidate by the face it settled onto in a drop and merges equal ones;
+:func:`resting_poses` turns resting-face normals into poses. The drop itself is MuJoCo's, in
+:mod:`graspgen.sim.stable_poses`, whose :func:`~graspgen.sim.stable_poses.stable_poses` chains the three.
 Lengths in m, angles in rad, times in s, speeds in m/s and rad/s; poses are 4x4 mesh-frame-to-world transforms
 resting on z = 0. Randomness only ever comes from the ``numpy.random.Generator`` passed in.
 """
@@ -12,7 +14,6 @@ import logging
 import math
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 import trimesh
 import trimesh.poses
@@ -22,20 +23,10 @@ from graspgen.geometry.mass import MassProperties
 from graspgen.geometry.mesh_io import _check_mesh, _label
 from graspgen.validation import check_bool, check_instance, check_number, check_positive_int, check_rng
 
-__all__ = ["StablePoseParams", "SettleResult", "resting_transform", "build_settle_model", "settle_pose", "stable_poses"]
+__all__ = ["StablePoseParams", "check_parts", "merge_settled", "pose_candidates", "resting_poses", "resting_transform"]
 
 _log = logging.getLogger(__name__)
 
-
-# Drop height for the settle check: enough that no contact starts in penetration, small enough not to bounce.
-_SETTLE_DROP_HEIGHT = 1e-3  # m
-
-# After settling, an object moving slower than this has not toppled. The limits are loose on purpose: a
-# faceted solid of revolution on its side (a can, a cone) keeps rolling slowly after the 1 mm drop because
-# nothing but facet edges resists rolling, yet it is resting on its side; its settled face is taken as its pose.
-# A body still faster than this after settle_time is tumbling off its pose.
-_REST_LINEAR_SPEED = 2e-2  # m/s
-_REST_ANGULAR_SPEED = 0.3  # rad/s
 
 # Candidate normals from different centre-of-mass samples closer than this are the same face; trimesh itself
 # rounds normals to 3 decimals for the same purpose.
@@ -45,7 +36,9 @@ _SAME_FACE_ANGLE = 1e-3  # rad
 _SAME_HEIGHT = 5e-4  # m
 
 
-def _check_parts(parts: object, name: str) -> None:
+def check_parts(parts: object, name: str) -> None:
+    """Raise :class:`~graspgen.errors.SettingsError` unless ``parts`` is a non-empty sequence of convex parts
+    ``(vertices (v, 3), faces (f, 3))``; ``name`` is used in the message."""
     if len(parts) == 0:
         raise SettingsError(f"{name}: needs at least one convex part")
     for i, part in enumerate(parts):
@@ -140,108 +133,10 @@ def resting_transform(hull_vertices: np.ndarray, center_of_mass: np.ndarray, nor
     return transform
 
 
-def build_settle_model(
-    parts: list[tuple[np.ndarray, np.ndarray]] | tuple, mass: MassProperties, params: StablePoseParams
-) -> mujoco.MjModel:
-    """MuJoCo model of the object as a free body of convex mesh geoms above a ground plane.
-
-    Mass and inertia come from ``mass`` (not from the geoms), so the dynamics match the analysis. The body
-    frame is the mesh frame. Options: ``params.timestep``, elliptic friction cones, impratio 10.
-    """
-    _check_parts(parts, "parts")
-    spec = mujoco.MjSpec()
-    spec.modelname = "settle"
-    spec.option.timestep = params.timestep
-    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
-    spec.option.impratio = 10.0
-    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE
-    friction = [params.friction, 0.005, 0.0001]
-    spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.0, 0.0, 1.0], friction=friction)
-    body = spec.worldbody.add_body(name="object")
-    body.add_freejoint(name="free")
-    body.explicitinertial = True
-    body.mass = mass.mass
-    body.ipos = mass.center_of_mass
-    inertia = mass.inertia
-    body.fullinertia = [inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2], inertia[1, 2]]
-    for i, (vertices, faces) in enumerate(parts):
-        spec.add_mesh(
-            name=f"part_{i}",
-            uservert=np.asarray(vertices, dtype=np.float64).ravel().tolist(),
-            userface=np.asarray(faces, dtype=np.int32).ravel().tolist(),
-        )
-        body.add_geom(name=f"part_{i}", type=mujoco.mjtGeom.mjGEOM_MESH, meshname=f"part_{i}", friction=friction)
-    return spec.compile()
-
-
-@dataclass(frozen=True, eq=False)
-class SettleResult:
-    """Outcome of one MuJoCo drop (see :func:`settle_pose`)."""
-
-    rotation: np.ndarray
-    """``(3, 3) float64`` final mesh-to-world rotation."""
-
-    position: np.ndarray
-    """``(3,) float64`` final position of the mesh-frame origin, m."""
-
-    linear_speed: float
-    """Final speed of the mesh-frame origin, m/s."""
-
-    angular_speed: float
-    """Final angular speed, rad/s."""
-
-    @property
-    def at_rest(self) -> bool:
-        """The object stopped moving and the state is finite."""
-        return bool(
-            np.isfinite(self.rotation).all()
-            and self.linear_speed < _REST_LINEAR_SPEED
-            and self.angular_speed < _REST_ANGULAR_SPEED
-        )
-
-
-def settle_pose(
-    model: mujoco.MjModel, transform: np.ndarray, params: StablePoseParams, data: mujoco.MjData | None = None
-) -> SettleResult:
-    """Drop the object from ``transform`` lifted by 1 mm and simulate ``params.settle_time``.
-
-    Parameters
-    ----------
-    model
-        From :func:`build_settle_model`.
-    transform
-        ``(4, 4) float`` mesh-to-world pose resting on z = 0.
-    params
-        Only ``settle_time`` is read here (timestep and friction are baked into ``model``).
-    data
-        Reused scratch state; it is fully reset, so reuse never changes the result.
-    """
-    data = mujoco.MjData(model) if data is None else data
-    mujoco.mj_resetData(model, data)
-    transform = np.asarray(transform, dtype=np.float64)
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(transform[:3, :3]).ravel())
-    data.qpos[:3] = transform[:3, 3] + (0.0, 0.0, _SETTLE_DROP_HEIGHT)
-    data.qpos[3:7] = quat
-    steps = max(1, int(round(params.settle_time / model.opt.timestep)))
-    mujoco.mj_step(model, data, nstep=steps)
-    body = model.body("object").id
-    return SettleResult(
-        rotation=np.array(data.xmat[body], dtype=np.float64).reshape(3, 3),
-        position=np.array(data.xpos[body], dtype=np.float64),
-        linear_speed=float(np.linalg.norm(data.qvel[:3])),
-        angular_speed=float(np.linalg.norm(data.qvel[3:6])),
-    )
-
-
-def stable_poses(
-    mesh: trimesh.Trimesh,
-    mass: MassProperties,
-    parts: list[tuple[np.ndarray, np.ndarray]] | tuple,
-    params: StablePoseParams,
-    rng: np.random.Generator,
+def pose_candidates(
+    mesh: trimesh.Trimesh, mass: MassProperties, params: StablePoseParams, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Poses in which the object rests on a table, with the probability of landing in each.
+    """The candidate resting faces of the object, before any settle check, most probable first.
 
     Candidates come from trimesh's quasi-static toppling analysis of the convex hull
     (``trimesh.poses.compute_stable_poses`` with ``sigma=0, n_samples=1`` and a fixed seed, which draws
@@ -251,25 +146,12 @@ def stable_poses(
     classes below ``min_probability`` are ignored (if all are, the most probable is kept) and at most
     ``max_poses`` candidates are kept round-robin over the classes (:func:`_select_pose_classes`).
 
-    Settle rule (``settle_check``): each candidate is dropped 1 mm in MuJoCo (convex ``parts``, mass and
-    inertia from ``mass``) and the hull face it ends up resting on is found. A candidate that does not come to
-    rest within ``settle_time`` is dropped. One that settles is *replaced by its settled pose*: if that tilts
-    more than ``max_tilt`` from the candidate, the candidate was not really stable and its probability moves
-    to where it went. Settled poses whose resting normals are within ``max_tilt`` of each other are merged
-    (probabilities add, the more probable one's pose is kept), so an unstable candidate that topples onto
-    another pose adds to it. If every candidate is dropped, the settled pose of the most probable one is
-    returned alone. One MuJoCo model is compiled per call and reset per candidate.
-
-    At most ``max_poses`` poses are returned, most probable first, probabilities renormalised to sum to 1.
-
     Parameters
     ----------
     mesh
         Repaired mesh in m.
     mass
         Its mass properties.
-    parts
-        Convex parts from :func:`~graspgen.geometry.convex.convex_decomposition` (only used by the settle check).
     params
         Settings.
     rng
@@ -277,11 +159,17 @@ def stable_poses(
 
     Returns
     -------
-    transforms : (n, 4, 4) float64
-        Mesh-to-world transforms resting the object on z = 0 (lowest hull vertex at z = 0, centre of mass above
-        the origin), n >= 1.
-    probabilities : (n,) float64
-        Sum to 1, descending.
+    normals : (k, 3) float64
+        Outward normals (mesh frame) of the resting faces of the hull, k >= 1.
+    probabilities : (k,) float64
+        Their probabilities (not renormalised).
+
+    Raises
+    ------
+    InputError
+        The centre of mass is not inside the convex hull.
+    SettingsError
+        ``mesh``, ``params`` or ``rng`` of the wrong kind.
     """
     _check_mesh(mesh, "mesh")
     check_rng("rng", rng)
@@ -289,9 +177,22 @@ def stable_poses(
     hull = mesh.convex_hull
     com = np.asarray(mass.center_of_mass, dtype=np.float64)
     normals, probs = _candidate_normals(mesh, hull, com, params, rng)
-    normals, probs = _select_pose_classes(hull, com, normals, probs, params)
-    if params.settle_check:
-        normals, probs = _settle_and_merge(hull, mass, parts, normals, probs, params, _label(mesh))
+    return _select_pose_classes(hull, com, normals, probs, params)
+
+
+def resting_poses(
+    hull: trimesh.Trimesh, mass: MassProperties, normals: np.ndarray, probs: np.ndarray, params: StablePoseParams
+) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``params.max_poses`` poses resting on the faces with outward ``normals (k, 3)``, most probable first.
+
+    Returns
+    -------
+    transforms : (n, 4, 4) float64
+        Mesh-to-world transforms resting the object on z = 0 (:func:`resting_transform`), n = min(k, max_poses).
+    probabilities : (n,) float64
+        ``probs`` of the kept poses renormalised to sum to 1, descending.
+    """
+    com = np.asarray(mass.center_of_mass, dtype=np.float64)
     order = _descending(normals, probs)[: params.max_poses]
     normals, probs = normals[order], probs[order]
     transforms = np.stack([resting_transform(hull.vertices, com, n) for n in normals])
@@ -383,27 +284,52 @@ def _descending(normals: np.ndarray, probs: np.ndarray) -> np.ndarray:
     return np.lexsort((normals[:, 2], normals[:, 1], normals[:, 0], -probs))
 
 
-def _settle_and_merge(
+def merge_settled(
     hull: trimesh.Trimesh,
-    mass: MassProperties,
-    parts: list[tuple[np.ndarray, np.ndarray]] | tuple,
     normals: np.ndarray,
     probs: np.ndarray,
+    rotations: np.ndarray,
+    at_rest: np.ndarray,
     params: StablePoseParams,
     label: str,
 ) -> tuple[np.ndarray, np.ndarray]:
-    model = build_settle_model(parts, mass, params)
-    data = mujoco.MjData(model)
-    com = np.asarray(mass.center_of_mass)
+    """The candidates replaced by the faces they settled onto, unrested ones dropped, equal ones merged.
+
+    A candidate that did not come to rest is dropped. One that did is *replaced by its settled pose* (the hull face
+    pointing down under its final rotation): if that tilts more than ``max_tilt`` from the candidate, the candidate
+    was not really stable and its probability moves to where it went. Settled poses whose resting normals are
+    within ``max_tilt`` of each other are merged (probabilities add, the more probable one's pose is kept). If
+    every candidate is dropped, the settled face of the first one is returned alone with probability 1.
+
+    Parameters
+    ----------
+    hull
+        The object's convex hull, mesh frame, m.
+    normals, probs
+        ``(k, 3)`` candidate resting-face normals and ``(k,)`` probabilities (:func:`pose_candidates`).
+    rotations
+        ``(k, 3, 3)`` each candidate's mesh-to-world rotation at the end of its drop (non-finite: diverged).
+    at_rest
+        ``(k,) bool`` whether each candidate came to rest.
+    params
+        Only ``max_tilt`` is read.
+    label
+        The object's name in log messages.
+
+    Returns
+    -------
+    normals : (m, 3) float64
+    probabilities : (m,) float64
+        m >= 1.
+    """
     settled_normals: list[np.ndarray] = []
     settled_probs: list[float] = []
     first_settled: np.ndarray | None = None
-    for normal, prob in zip(normals, probs, strict=True):
-        result = settle_pose(model, resting_transform(hull.vertices, com, normal), params, data)
-        settled = _resting_face_normal(hull, result.rotation) if np.isfinite(result.rotation).all() else normal
+    for normal, prob, rotation, rest in zip(normals, probs, rotations, at_rest, strict=True):
+        settled = _resting_face_normal(hull, rotation) if np.isfinite(rotation).all() else normal
         if first_settled is None:
             first_settled = settled
-        if not result.at_rest:
+        if not rest:
             _log.debug("%s: pose %s did not come to rest, dropped", label, normal)
             continue
         if _angle(settled, normal) > params.max_tilt:

@@ -1,53 +1,10 @@
-"""Atomic file writes: a reader never sees a half-written file, and a failed write leaves nothing behind.
-
-The library's own copy of the engine's rule (it must run without the engine): write to a temp file in the
-destination's folder (``.<final name>.<random>.tmp``), flush it to disk, then ``os.replace`` it onto the final
-name. The file gets the mode the umask gives, as ``open()`` would.
+"""Atomic file writes for the library: :func:`atomic_path`, :func:`write_text_atomic` and :data:`TEMP_SUFFIX`,
+defined once in :mod:`shared_utils.atomic` (below the engine and the library, so the library still runs without the
+engine) and re-exported here. A reader never sees a half-written file; a failed write leaves nothing behind.
 """
 
 from __future__ import annotations
 
-import contextlib
-import os
-import tempfile
-from collections.abc import Iterator
-from pathlib import Path
+from shared_utils.atomic import TEMP_SUFFIX, atomic_path, write_text_atomic
 
 __all__ = ["TEMP_SUFFIX", "atomic_path", "write_text_atomic"]
-
-TEMP_SUFFIX = ".tmp"
-"""Suffix of the temp files of :func:`atomic_path` (named ``.<final name>.<random>.tmp``)."""
-
-
-def _file_mode() -> int:
-    """The mode a new file gets under the current umask (0644 under 022), as ``open()`` would give it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-@contextlib.contextmanager
-def atomic_path(final: Path) -> Iterator[Path]:
-    """Yield a temp path in ``final``'s folder; on success move it onto ``final`` with ``os.replace``.
-
-    The temp file is removed if the body raises, so a failed write never leaves a partial file behind.
-    """
-    final.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{final.name}.", suffix=TEMP_SUFFIX, dir=final.parent)
-    os.fchmod(fd, _file_mode())
-    os.close(fd)
-    tmp_path = Path(tmp)
-    try:
-        yield tmp_path
-        with open(tmp_path, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp_path, final)
-    finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write a small text file atomically."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)

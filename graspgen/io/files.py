@@ -7,7 +7,6 @@ metadata.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -19,6 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from graspgen.errors import SettingsError
+from shared_utils.digest import sha256_file as sha256_file  # re-exported: one definition, below engine and library
 
 ATTRS = "@attrs"
 """Key in a tree node whose value (a mapping) becomes the HDF5 attributes of that group."""
@@ -136,12 +136,3 @@ def write_parquet(path: str | Path, table: pa.Table, *, row_group_size: int = 65
         write_statistics=True,
         store_schema=True,
     )
-
-
-def sha256_file(path: str | Path) -> str:
-    """Hex sha256 of a file's bytes (read in 1 MiB blocks)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()

@@ -4,7 +4,7 @@ The end-to-end check of a model (``gen probe pick``): does ranking by the networ
 more often than picking at random?
 
 1. :func:`sample_candidates`: the mesh is loaded, repaired and brought to metres as
-   :func:`graspgen.geometry.prepare.prepare_object` does it (so the candidates are in the frame
+   :func:`graspgen.workflows.prepare.prepare_object` does it (so the candidates are in the frame
    :func:`graspgen.workflows.evaluate.evaluate_grasps` rolls them out in), and antipodal candidates are drawn over the
    whole sphere as the object-grasps stage draws them (:func:`graspgen.geometry.antipodal.sample_antipodal` with
    ``approach="any"``: every call's candidates shuffled, calls repeated until ``n`` are there).

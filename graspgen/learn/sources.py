@@ -140,10 +140,10 @@ def _physics_digest() -> str:
     (:data:`_PHYSICS_DATA`) and MuJoCo's version. A Python file enters as its syntax tree without docstrings
     (:func:`code_digest_text`): comments, docstrings and layout do not change labels, so editing them (or code the
     labels do not run) keeps the cache."""
-    import mujoco
+    from graspgen.sim.physics import mujoco_version
 
     root = Path(__file__).resolve().parents[2]
-    h = hashlib.sha256(mujoco.__version__.encode())
+    h = hashlib.sha256(mujoco_version().encode())
     for f in physics_modules():
         h.update(f.relative_to(root).as_posix().encode() + b"\0" + code_digest_text(f.read_bytes()))
     for rel in _PHYSICS_DATA:

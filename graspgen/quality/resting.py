@@ -2,7 +2,7 @@
 
 A copy's centre-of-mass offset (:mod:`graspgen.quality.perturbation`) is drawn freely and then made consistent with
 the object resting, stably, where it was seen (:func:`resting_com_offset`): the support polygon (from the
-support points, :func:`graspgen.workflows.perturbed_copies.support_points`) as half-planes, the tipping margin as
+support points, :func:`graspgen.sim.perturbed_copies.support_points`) as half-planes, the tipping margin as
 linear constraints, and the nearest admissible centre by least-distance programming. Pure numpy and scipy.
 """
 
@@ -72,7 +72,7 @@ def resting_com_offset(offset: np.ndarray, support: np.ndarray, T_world_object: 
     offset : (3,) float
         Drawn offset, m, mesh frame.
     support : (k, 3) float
-        :func:`graspgen.workflows.perturbed_copies.support_points`, mesh frame.
+        :func:`graspgen.sim.perturbed_copies.support_points`, mesh frame.
     T_world_object : (4, 4) float
         The object's pose (mesh frame to world) at rest.
     center_of_mass : (3,) float

@@ -14,7 +14,7 @@ import mujoco
 from graspgen.errors import SettingsError
 from graspgen.validation import check_choice, check_number, check_vector
 
-__all__ = ["PhysicsOptions", "physics_options"]
+__all__ = ["PhysicsOptions", "mujoco_version", "physics_options"]
 
 _CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
 _INTEGRATORS = {
@@ -75,3 +75,9 @@ def physics_options(target: mujoco.MjSpec | mujoco.MjModel, options: PhysicsOpti
     """Apply ``options`` (default: :class:`PhysicsOptions()`: 2 ms, elliptic cones, impratio 10, implicitfast) to an
     MjSpec or MjModel; returns ``target``."""
     return (options or PhysicsOptions()).apply(target)
+
+
+def mujoco_version() -> str:
+    """The version string of the MuJoCo that simulates (``mujoco.__version__``, e.g. ``"3.3.7"``), for cache keys
+    built outside :mod:`graspgen.sim` (only ``graspgen.sim`` imports MuJoCo)."""
+    return str(mujoco.__version__)

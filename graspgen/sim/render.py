@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Sequence
 
 from graspgen.sim.gl import HOW_TO_FIX, backend_in_use, render_problem, select_backend
 
@@ -35,7 +36,7 @@ from graspgen.sim.camera import Camera  # noqa: E402
 from graspgen.sim.scene_model import SEG_BACKGROUND  # noqa: E402
 from graspgen.sim.scene_state import geom_labels  # noqa: E402
 
-__all__ = ["RenderedView", "SceneRenderer"]
+__all__ = ["RenderedView", "SceneRenderer", "render_frames"]
 
 
 def _gl_backend_note() -> str:
@@ -165,3 +166,71 @@ class SceneRenderer:
             gl.frustum_top = top
             gl.frustum_bottom = bottom
             gl.orthographic = 0
+
+
+def _blocked(model: mujoco.MjModel, data: mujoco.MjData, camera: Camera, point: np.ndarray, target: int) -> bool:
+    """Whether something other than the target object and the gripper lies between the camera and ``point``."""
+    eye = np.asarray(camera.T_world_camera, dtype=float)[:3, 3]
+    ray = np.asarray(point, dtype=float) - eye
+    length = float(np.linalg.norm(ray))
+    groups = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)  # support and visual meshes; not the gripper (group 2)
+    hit = mujoco.mj_ray(model, data, eye, ray / length, groups, 1, target, np.zeros(1, dtype=np.int32))
+    return 0.0 <= hit < length - 0.01
+
+
+def render_frames(
+    spec: mujoco.MjSpec,
+    qpos: Sequence[np.ndarray],
+    cameras: Sequence[Camera],
+    *,
+    target_body: str | None = None,
+    point: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """RGB images of a model posed at each of ``qpos``, from one camera.
+
+    Parameters
+    ----------
+    spec
+        The world to draw (a visual model with the simulator's joints, e.g.
+        :func:`graspgen.sim.object_world.world_spec` with ``visual``); its offscreen buffer is enlarged to the
+        cameras' size, then it is compiled.
+    qpos
+        ``(nq,) float64`` joint positions, one per image.
+    cameras
+        Candidate cameras, all of one size, best first.
+    target_body, point
+        With both: the first camera whose line of sight to ``point (3,)`` (world, m) is clear in the first pose,
+        ignoring ``target_body`` and the gripper, is used (``cameras[0]`` when none is); else ``cameras[0]``.
+
+    Returns
+    -------
+    list of (H, W, 3) uint8
+
+    Raises
+    ------
+    SettingsError
+        A ``qpos`` of another length than the model's, or images larger than the model's buffer.
+    RenderError
+        No OpenGL back end can render in this process.
+    """
+    camera = cameras[0]
+    spec.visual.global_.offwidth = max(int(spec.visual.global_.offwidth), camera.width)
+    spec.visual.global_.offheight = max(int(spec.visual.global_.offheight), camera.height)
+    model = spec.compile()
+    for q in qpos:
+        if q.shape != (model.nq,):
+            raise SettingsError(f"frames: qpos has {q.shape[0]} entries, the model {model.nq}")
+    if target_body is not None and point is not None:
+        data = mujoco.MjData(model)
+        data.qpos[:] = qpos[0]
+        mujoco.mj_forward(model, data)
+        target = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, target_body)
+        camera = next((c for c in cameras if not _blocked(model, data, c, point, target)), cameras[0])
+    data = mujoco.MjData(model)
+    images = []
+    with SceneRenderer(model, camera.width, camera.height) as renderer:
+        for q in qpos:
+            data.qpos[:] = q
+            mujoco.mj_forward(model, data)
+            images.append(renderer.render(data, camera, rgb=True).rgb)
+    return images

@@ -55,16 +55,22 @@ class SettleParams:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class SettleResult:
-    """What :func:`settle` did."""
+    """What a settle did: :func:`settle` (a scene, ``n`` objects) or
+    :func:`graspgen.sim.stable_poses.settle_pose` (one object dropped onto a plane, ``n = 1``)."""
 
     time: float
     """Simulated time, s."""
     at_rest: bool
-    """Every object was calm in the last two check windows."""
+    """Every object is at rest: for :func:`settle` calm in the last two check windows, for ``settle_pose`` finite
+    and slower than its rest limits at the last step."""
     linear_speed: np.ndarray
-    """(n,) mean speed of each object's centre of mass over the last check window, m/s."""
+    """(n,) speed of each object, m/s: for :func:`settle` the mean speed of its centre of mass over the last check
+    window, for ``settle_pose`` the speed of its mesh-frame origin at the last step."""
     angular_speed: np.ndarray
-    """(n,) mean angular speed of each object over the last check window (rotation angle / window), rad/s."""
+    """(n,) angular speed of each object, rad/s: for :func:`settle` the mean over the last check window (rotation
+    angle / window), for ``settle_pose`` at the last step."""
+    poses: np.ndarray
+    """(n, 4, 4) float64 each object's pose (mesh frame to world) at the end, m."""
 
     def moving(self, params: SettleParams) -> np.ndarray:
         """(n,) bool: objects not calm in the last window under ``params``' thresholds."""
@@ -92,13 +98,15 @@ def settle(model: mujoco.MjModel, data: mujoco.MjData, params: SettleParams) -> 
     window = steps_per_check * model.opt.timestep
     max_checks = max(1, int(math.ceil(params.max_time / window - 1e-9)))
     calm = 0
-    com, rot = _com_and_rotation(model, object_poses(model, data))
+    poses = object_poses(model, data)
+    com, rot = _com_and_rotation(model, poses)
     lin = ang = np.zeros(len(com))
     for _ in range(max_checks):
         mujoco.mj_step(model, data, nstep=steps_per_check)
         if not (np.all(np.isfinite(data.qpos)) and np.all(np.isfinite(data.qvel))):
             raise SimulationError("scene simulation diverged (non-finite state); check the object masses and meshes")
-        new_com, new_rot = _com_and_rotation(model, object_poses(model, data))
+        poses = object_poses(model, data)
+        new_com, new_rot = _com_and_rotation(model, poses)
         lin = np.linalg.norm(new_com - com, axis=1) / window
         cos = (np.einsum("nij,nij->n", new_rot, rot) - 1) / 2  # trace(R_new R_old^T) = 1 + 2 cos(angle)
         ang = np.arccos(np.clip(cos, -1.0, 1.0)) / window
@@ -106,4 +114,4 @@ def settle(model: mujoco.MjModel, data: mujoco.MjData, params: SettleParams) -> 
         calm = calm + 1 if np.all(lin < params.linear_speed) and np.all(ang < params.angular_speed) else 0
         if calm >= 2 and data.time >= params.min_time - 1e-9:
             break
-    return SettleResult(time=float(data.time), at_rest=calm >= 2, linear_speed=lin, angular_speed=ang)
+    return SettleResult(time=float(data.time), at_rest=calm >= 2, linear_speed=lin, angular_speed=ang, poses=poses)

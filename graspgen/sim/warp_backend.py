@@ -46,15 +46,11 @@ from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
 from graspgen.sim.warp_batch import BatchRun, disturbance_segments, unfinished_result
 from graspgen.sim.warp_table import TableRun, table_placement
 from graspgen.validation import check, check_choice, check_instance, check_int
+from shared_utils.keys import KEY_OMIT_DEFAULT  # the flag of the settings added with this backend (re-exported)
 
 __all__ = ["BACKENDS", "KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WarpParams", "WarpLiftSimulator", "check_backend",
            "import_warp", "warp_versions", "require_warp"]
 
-KEY_OMIT_DEFAULT = "key_omit_default"
-"""Field metadata flag of the settings added with this backend (``rollouts.backend``, ``object_grasps.backend`` and
-their ``warp``): content keys leave such a field out while it holds its default, so the keys made before it existed
-stay. It is the engine's flag of the same name (``pipeline.keys``); the library does not import the engine, so
-``tests/stages/test_rollouts_backend.py`` checks that the two are the same."""
 
 #: Rollout backends: ``mujoco`` (the CPU, :class:`LiftSimulator`) and ``warp`` (:class:`WarpLiftSimulator`).
 BACKENDS: tuple[str, ...] = ("mujoco", "warp")

@@ -25,13 +25,14 @@ select_backend()  # Rendering needs a headless GL backend; MuJoCo reads MUJOCO_G
 
 from collections.abc import Sequence  # noqa: E402
 
+from graspgen.sim.object_world import world_spec  # noqa: E402
+from graspgen.sim.render import render_frames  # noqa: E402
 from graspgen.validation import check_int  # noqa: E402
 from graspgen.viz.rollout_movie import (  # noqa: E402
     Frame,
     RolloutMovie,
     pick_frames,
     record_rollout,
-    render_frames,
     side_cameras,
 )
 from graspgen.workflows.evaluation_world import EvaluationWorld  # noqa: E402
@@ -88,15 +89,11 @@ def evaluated_rollout_movie(
     result, states = record_rollout(world.simulator(), T, float(world.width[index]), body)
     frames = after_closing_frames(states, n_frames)
 
-    spec = world.visual_spec()
-    spec.visual.global_.offwidth = max(int(spec.visual.global_.offwidth), size[0])
-    spec.visual.global_.offheight = max(int(spec.visual.global_.offheight), size[1])
-    model = spec.compile()
     lift = world.world.lift
     rise = lift.lift_height if lift.protocol == "table" else 0.0  # the other protocols lift nothing
     distance = max(_FRAMING, 4.0 * world.geometry.torque_scale)
     camera = side_cameras(T, rise, width=size[0], height=size[1], distance=distance)[0]
-    images = render_frames(model, frames, camera)
+    images = render_frames(world_spec(world.world, world.visual()), [f.qpos for f in frames], [camera])
 
     title = f"{name or f'grasp {index}'} ({lift.protocol} protocol): {result.name} ({result.code}), decided in " \
             f"{result.decided_in}"

@@ -8,16 +8,13 @@ from __future__ import annotations
 import io
 import math
 
-import mujoco
 import numpy as np
 
 from graspgen.errors import RenderError
 from graspgen.grippers import Box, GripperSpec
 from graspgen.grippers.shapes import bounds_of
 from graspgen.sim.camera import Camera, camera_on_sphere, intrinsics_from_fov, project, transform_points
-from graspgen.sim.gripper_model import attach_gripper, build_gripper
-from graspgen.sim.gripper_state import gripper_geom_ids, set_gripper_pose, set_gripper_width
-from graspgen.sim.render import SceneRenderer
+from graspgen.sim.gripper_views import gripper_geom_points, render_gripper
 
 __all__ = ["gripper_picture"]
 
@@ -76,25 +73,15 @@ def _render_views(spec: GripperSpec, widths, px: int):
     """MuJoCo renders: {(width, view title): PIL image}. RenderError when OpenGL is unavailable."""
     from PIL import Image, ImageDraw
 
-    world = mujoco.MjSpec()
-    world.visual.global_.offwidth = px
-    world.visual.global_.offheight = px
-    light = world.worldbody.add_light()
-    light.pos = [0.3, -0.6, 0.8]
-    light.dir = [-0.3, 0.6, -0.8]
-    attach_gripper(world, spec)
-    model = world.compile()
-    data = mujoco.MjData(model)
     centre, extent = _picture_frame(spec)
+    views = _views(centre, extent, px)
+    rgb = render_gripper(spec, _PICTURE_POSE, widths, [camera for _, camera in views], px)
     out = {}
-    with SceneRenderer(model, px, px) as renderer:
-        for width in widths:
-            set_gripper_pose(model, data, _PICTURE_POSE)
-            set_gripper_width(model, data, width, instant=True)
-            for title, camera in _views(centre, extent, px):
-                image = Image.fromarray(renderer.render(data, camera, rgb=True).rgb)
-                _tcp_axes(ImageDraw.Draw(image), camera, 0.03)
-                out[width, title] = image
+    for width in widths:
+        for k, (title, camera) in enumerate(views):
+            image = Image.fromarray(rgb[width, k])
+            _tcp_axes(ImageDraw.Draw(image), camera, 0.03)
+            out[width, title] = image
     return out
 
 
@@ -109,26 +96,16 @@ def _wireframe_views(spec: GripperSpec, widths, px: int):
     from PIL import Image
     from scipy.spatial import ConvexHull
 
-    model = build_gripper(spec).compile()
-    data = mujoco.MjData(model)
-    roles = gripper_geom_ids(model)
-    colours = {g: tuple(model.geom_rgba[g][:3]) for g in roles["all"]}
+    geoms = gripper_geom_points(spec, _PICTURE_POSE, widths)
     out = {}
     for width in widths:
-        set_gripper_pose(model, data, _PICTURE_POSE)
-        set_gripper_width(model, data, width, instant=True)
         for title, axes in (("front", (0, 2)), ("side", (1, 2))):
             fig, ax = plt.subplots(figsize=(px / 100, px / 100), dpi=100)
-            for g in roles["all"]:
-                R, p = data.geom_xmat[g].reshape(3, 3), data.geom_xpos[g]
-                if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
-                    m = model.geom_dataid[g]
-                    local = model.mesh_vert[model.mesh_vertadr[m]:model.mesh_vertadr[m] + model.mesh_vertnum[m]]
-                else:
-                    local = np.array(np.meshgrid(*[[-h, h] for h in model.geom_size[g]])).reshape(3, -1).T
-                pts = (local @ R.T + p)[:, axes]
+            for points, rgb in geoms[width]:
+                colour = tuple(rgb)
+                pts = points[:, axes]
                 hull = pts[ConvexHull(pts).vertices]
-                ax.fill(hull[:, 0], hull[:, 1], color=colours[g], alpha=0.35, lw=1.2, ec=colours[g])
+                ax.fill(hull[:, 0], hull[:, 1], color=colour, alpha=0.35, lw=1.2, ec=colour)
             for k in range(3):
                 tip = 0.03 * _PICTURE_POSE[:3, k]
                 if np.hypot(tip[axes[0]], tip[axes[1]]) > 1e-6:

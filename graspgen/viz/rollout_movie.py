@@ -26,7 +26,6 @@ from graspgen.sim.gl import select_backend
 
 select_backend()  # Rendering needs a headless GL backend; MuJoCo reads MUJOCO_GL when first imported.
 
-import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import pyarrow as pa  # noqa: E402
 
@@ -36,7 +35,7 @@ from graspgen.sim.camera import Camera, camera_on_sphere, intrinsics_from_fov  #
 from graspgen.sim.gripper_model import attach_gripper  # noqa: E402
 from graspgen.sim.lift import LiftSimulator  # noqa: E402
 from graspgen.sim.protocols import LiftParams, RolloutResult  # noqa: E402
-from graspgen.sim.render import SceneRenderer  # noqa: E402
+from graspgen.sim.render import render_frames  # noqa: E402
 from graspgen.sim.scene_model import object_body_name, scene_spec  # noqa: E402
 from graspgen.workflows.rollouts import scene_simulator  # noqa: E402
 from graspgen.workflows.scene_grasps import PREFILTER_NAMES  # noqa: E402
@@ -47,7 +46,6 @@ __all__ = [
     "record_rollout",
     "pick_frames",
     "side_cameras",
-    "render_frames",
     "rollout_movie",
     "save_movie",
 ]
@@ -159,30 +157,6 @@ def side_cameras(T_tcp_world: np.ndarray, lift_height: float, *, width: int = 32
     return cameras
 
 
-def _blocked(model: mujoco.MjModel, data: mujoco.MjData, camera: Camera, point: np.ndarray, target: int) -> bool:
-    """Whether something other than the target object and the gripper lies between the camera and ``point``."""
-    eye = np.asarray(camera.T_world_camera, dtype=float)[:3, 3]
-    ray = np.asarray(point, dtype=float) - eye
-    length = float(np.linalg.norm(ray))
-    groups = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)  # support and visual meshes; not the gripper (group 2)
-    hit = mujoco.mj_ray(model, data, eye, ray / length, groups, 1, target, np.zeros(1, dtype=np.int32))
-    return 0.0 <= hit < length - 0.01
-
-
-def render_frames(model: mujoco.MjModel, frames: Sequence[Frame], camera: Camera) -> list[np.ndarray]:
-    """RGB images ``(H, W, 3) uint8`` of ``frames`` posed in ``model`` (a visual model with the same joints)."""
-    data = mujoco.MjData(model)
-    images = []
-    with SceneRenderer(model, camera.width, camera.height) as renderer:
-        for frame in frames:
-            if frame.qpos.shape != (model.nq,):
-                raise SettingsError(f"frames: qpos has {frame.qpos.shape[0]} entries, the model {model.nq}")
-            data.qpos[:] = frame.qpos
-            mujoco.mj_forward(model, data)
-            images.append(renderer.render(data, camera, rgb=True).rgb)
-    return images
-
-
 def rollout_movie(
     scene_path: str | Path,
     load_object: Callable[[str], Any],
@@ -230,21 +204,14 @@ def rollout_movie(
     result, states = record_rollout(simulator, T, width, object_body_name(index, name))
     frames = pick_frames(states, n_frames)
 
-    # The same scene with visual meshes, for the renderer (its offscreen buffer must hold a frame).
+    # The same scene with visual meshes, for the renderer, filmed by the first side camera whose line of sight to
+    # the grasp point is clear (a neighbour may hide the grasp).
     records = {n: load_object(n) for n in sorted(set(scene.object_names))}
     spec = scene_spec(scene, records, visual=True)
-    spec.visual.global_.offwidth = max(int(spec.visual.global_.offwidth), size[0])
-    spec.visual.global_.offheight = max(int(spec.visual.global_.offheight), size[1])
     attach_gripper(spec, load_gripper(gripper))
-    model = spec.compile()
-    # The first side camera whose line of sight to the grasp point is clear (a neighbour may hide the grasp).
-    data = mujoco.MjData(model)
-    data.qpos[:] = frames[0].qpos
-    mujoco.mj_forward(model, data)
-    target = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, object_body_name(index, name))
     cameras = side_cameras(T, lift.lift_height, width=size[0], height=size[1])
-    camera = next((c for c in cameras if not _blocked(model, data, c, T[:3, 3], target)), cameras[0])
-    images = render_frames(model, frames, camera)
+    images = render_frames(spec, [f.qpos for f in frames], cameras, target_body=object_body_name(index, name),
+                           point=T[:3, 3])
 
     stored, simulated = None, True
     if rollouts is not None:

@@ -26,7 +26,7 @@ Protocols (``LiftParams.protocol``, or the ``protocol`` argument; :mod:`graspgen
     most probable stable pose, settled in MuJoCo, with gravity throughout; the grasps are moved with it
     (``T_world = T_world_object @ T_object``). Grasps from below the table top are collisions with the ground (0).
 
-The object is prepared with :func:`graspgen.geometry.prepare.prepare_object` (repair, units, mass from density,
+The object is prepared with :func:`graspgen.workflows.prepare.prepare_object` (repair, units, mass from density,
 CoACD with cheap settings unless configured, cached by mesh hash). Gripper opening (``table``): the given widths
 (the jaws open to ``width + width_margin``), or, without widths, the width found by closing the pads onto the mesh
 with ray casts (:func:`graspgen.geometry.contacts.closing_contacts`); a grasp whose pads touch nothing that way
@@ -70,14 +70,14 @@ import pyarrow as pa
 from graspgen.grippers import load_gripper
 from graspgen.quality.epsilon import EpsilonParams, ObjectGeometry
 from graspgen.quality.perturbation import DRAWS_PER_COPY, RobustnessParams
-from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.object_world import world_simulator, world_warp_simulator
 from graspgen.sim.protocols import Outcome, RolloutResult
 from graspgen.sim.scene_model import object_body_name
-from graspgen.sim.warp_backend import WarpLiftSimulator, WarpParams, check_backend
+from graspgen.sim.warp_backend import WarpParams, check_backend
 from graspgen.validation import check_instance, check_rng
 from graspgen.workflows.evaluate_columns import METADATA_KEY, evaluation_table, with_robustness_columns
 from graspgen.workflows.evaluate_settings import EvaluateParams
-from graspgen.workflows.evaluation_world import EvaluationWorld, ObjectWorld, evaluation_world, world_spec
+from graspgen.workflows.evaluation_world import EvaluationWorld, ObjectWorld, evaluation_world
 from graspgen.workflows.robustness import grasp_robustness
 from graspgen.workflows.robustness_columns import GraspRobustness
 
@@ -194,7 +194,7 @@ def _roll_out(ew: EvaluationWorld, jobs: int) -> list[RolloutResult]:
 
 def _roll_out_chunk(world: ObjectWorld, T_world: np.ndarray, widths: np.ndarray) -> list[RolloutResult]:
     """Roll out a chunk of grasps (world-frame TCP poses) in one freshly compiled model (one per worker)."""
-    simulator = LiftSimulator(world_spec(world).compile(), world.lift)
+    simulator = world_simulator(world)
     body = object_body_name(0, world.obj.name)
     return [simulator.rollout(T, float(w), body) for T, w in zip(T_world, widths)]
 
@@ -204,7 +204,7 @@ def _roll_out_warp(world: ObjectWorld, T_world: np.ndarray, widths: np.ndarray,
     """All grasps on the warp backend, in one model of ``warp.nworld`` worlds (input order)."""
     if len(T_world) == 0:
         return []
-    simulator = WarpLiftSimulator(world_spec(world).compile(), world.lift, warp)  # as EvaluationWorld's
+    simulator = world_warp_simulator(world, warp)  # as EvaluationWorld's
     return simulator.rollouts(T_world, object_body_name(0, world.obj.name), widths)
 
 
@@ -238,7 +238,7 @@ def _robustness_chunk(world: ObjectWorld, geometry: ObjectGeometry, T_world: np.
     """The perturbed copies of a chunk of successful grasps (world-frame poses ``(k, 4, 4)``, widths ``(k,)``,
     draws ``(k, n, DRAWS_PER_COPY)``), in one freshly compiled model per worker, by the robustness stage's
     :func:`graspgen.workflows.robustness.grasp_robustness` (the copies' epsilon by the default ``EpsilonParams``)."""
-    simulator = LiftSimulator(world_spec(world).compile(), world.lift)
+    simulator = world_simulator(world)
     gripper = load_gripper(world.gripper)
     body = object_body_name(0, world.obj.name)
     epsilon = EpsilonParams()

@@ -12,72 +12,27 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-import mujoco
 import numpy as np
 import trimesh
 
 from graspgen.errors import SettingsError
 from graspgen.geometry.contacts import closing_contacts
-from graspgen.geometry.prepare import prepare_object
 from graspgen.geometry.stable_poses import StablePoseParams
 from graspgen.grippers import GripperSpec, load_gripper
 from graspgen.quality.epsilon import ObjectGeometry
-from graspgen.sim.gripper_model import attach_gripper
 from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.object_world import ObjectWorld, settled_object_pose, world_simulator, world_warp_simulator
 from graspgen.sim.protocols import LiftParams
-from graspgen.sim.scene_model import PlacedObject, build_scene_spec, free_space_spec, object_body_name
-from graspgen.sim.scene_state import object_poses
-from graspgen.sim.settle import SettleParams, settle
-from graspgen.sim.support import SupportParams
+from graspgen.sim.scene_model import PlacedObject, object_body_name
 from graspgen.sim.warp_backend import WarpLiftSimulator, WarpParams
 from graspgen.validation import check_instance, check_transforms
 from graspgen.workflows.evaluate_settings import EvaluateParams
+from graspgen.workflows.prepare import prepare_object
 
-__all__ = ["OBJECT_NAME", "EvaluationWorld", "ObjectWorld", "evaluation_world", "world_spec"]
+__all__ = ["OBJECT_NAME", "EvaluationWorld", "ObjectWorld", "evaluation_world"]
 
 OBJECT_NAME = "object"
 """Body name stem of the evaluated object (the body is ``obj/0_object``)."""
-
-
-@dataclasses.dataclass(frozen=True, eq=False)
-class ObjectWorld:
-    """What a worker needs to build its model (plain arrays: cheap to pickle, unlike a compiled model)."""
-
-    obj: PlacedObject
-    """The object, placed (its pose: the identity in free space, else settled on the support)."""
-    support: SupportParams | None
-    """The table; None: free space."""
-    gripper: str
-    """A bundled gripper name or the path of a gripper file (what :func:`load_gripper` takes)."""
-    lift: LiftParams
-    """The protocol and its settings."""
-
-
-def _object_spec(obj: PlacedObject, support: SupportParams | None, lift: LiftParams) -> mujoco.MjSpec:
-    """The object (and table) as an MjSpec; without a support, the ground and table are removed: free space."""
-    physics = lift.physics_options((0.0, 0.0, -9.81))
-    if support is None:
-        return free_space_spec(obj, physics)
-    return build_scene_spec([obj], support, physics)
-
-
-def _settled_pose(obj: PlacedObject, support: SupportParams, lift: LiftParams) -> np.ndarray:
-    """(4, 4) pose of ``obj`` after settling on ``support`` (without the gripper: it starts at the origin, which
-    the object's resting place may overlap)."""
-    model = _object_spec(obj, support, lift).compile()
-    data = mujoco.MjData(model)
-    mujoco.mj_forward(model, data)
-    settle(model, data, SettleParams())
-    return object_poses(model, data)[0]
-
-
-def world_spec(world: ObjectWorld, visual: tuple[np.ndarray, np.ndarray] | None = None) -> mujoco.MjSpec:
-    """The world as an MjSpec with the gripper attached; ``visual`` ``(vertices (v, 3) m, faces (f, 3))`` adds the
-    object's visual mesh (drawn only: the physics and the joints are those of the model without it)."""
-    obj = world.obj if visual is None else dataclasses.replace(world.obj, visual=visual)
-    spec = _object_spec(obj, world.support, world.lift)
-    attach_gripper(spec, load_gripper(world.gripper))
-    return spec
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -107,19 +62,20 @@ class EvaluationWorld:
 
     def simulator(self) -> LiftSimulator:
         """The world compiled with the gripper, in a fresh model: rolls a grasp out as ``evaluate_grasps`` did."""
-        return LiftSimulator(world_spec(self.world).compile(), self.world.lift)
+        return world_simulator(self.world)
 
     def warp_simulator(self, warp: WarpParams | None = None) -> WarpLiftSimulator:
         """The same world on the warp backend (:class:`graspgen.sim.warp_backend.WarpLiftSimulator`, batches of
         ``warp.nworld`` grasps): ``warp_simulator().rollouts(T_world, target_body)`` rolls them out as
         ``evaluate_grasps`` with ``backend="warp"`` does."""
-        return WarpLiftSimulator(world_spec(self.world).compile(), self.world.lift, warp)
+        return world_warp_simulator(self.world, warp)
 
-    def visual_spec(self) -> mujoco.MjSpec:
-        """The world with the gripper and the object's visual mesh (for rendering); its joints are the simulator's,
-        so a recorded ``qpos`` poses it."""
+    def visual(self) -> tuple[np.ndarray, np.ndarray]:
+        """The object's visual mesh, ``(vertices (v, 3) float64 m, faces (f, 3))`` in its frame, for
+        :func:`graspgen.sim.object_world.world_spec` (rendering: the joints are the simulator's, so a recorded
+        ``qpos`` poses that model)."""
         mesh = self.geometry.mesh
-        return world_spec(self.world, (np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)))
+        return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)
 
 
 def _settings(params: EvaluateParams | None, protocol: str | None, free_space: bool) -> EvaluateParams:
@@ -172,7 +128,7 @@ def _placed_object(prepared: Any, params: EvaluateParams, free_space: bool, lift
                        friction=params.friction)
     if free_space:
         return obj
-    return dataclasses.replace(obj, pose=_settled_pose(
+    return dataclasses.replace(obj, pose=settled_object_pose(
         dataclasses.replace(obj, pose=prepared.stable_transforms[0]), params.support, lift))
 
 

@@ -58,7 +58,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import mujoco
 import numpy as np
 import pyarrow as pa
 
@@ -189,11 +188,11 @@ def _object_sets(names: list[str], load_object_grasps: Callable[[str], pa.Table 
     return sets
 
 
-def _place_object(scene: SceneRecord, index: int, rows: dict[str, np.ndarray], spec: mujoco.MjSpec,
-                  checkers: dict[str, CollisionChecker], prefilter: PrefilterParams, max_per_object: int,
-                  rng: np.random.Generator) -> dict[str, np.ndarray]:
+def _place_object(scene: SceneRecord, index: int, rows: dict[str, np.ndarray],
+                  new_checker: Callable[[str], CollisionChecker], checkers: dict[str, CollisionChecker],
+                  max_per_object: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """One scene object's set (a seeded subsample of ``max_per_object`` rows; 0: all) moved into the scene and
-    checked with each gripper's checker (made on first use)."""
+    checked with each gripper's checker (``new_checker(gripper)``, made on first use and kept in ``checkers``)."""
     name = scene.object_names[index]
     pick = np.arange(len(rows["grasp_id"]))
     if max_per_object and len(pick) > max_per_object:
@@ -208,7 +207,7 @@ def _place_object(scene: SceneRecord, index: int, rows: dict[str, np.ndarray], s
     for gripper in sorted(set(grippers)):
         sel = np.flatnonzero(grippers == gripper)
         if gripper not in checkers:
-            checkers[gripper] = CollisionChecker(spec, load_gripper(gripper), prefilter)
+            checkers[gripper] = new_checker(gripper)
         codes[sel] = checkers[gripper].check(T_world[sel], open_width[sel], body, ignore_target=True)
     return {
         "object_index": np.full(k, index, dtype=np.int16),
@@ -335,7 +334,10 @@ def place_object_grasps(
     prefilter = params.prefilter()
     checkers: dict[str, CollisionChecker] = {}
     t1 = time.perf_counter()
-    parts = [_place_object(scene, index, sets[name], spec, checkers, prefilter, params.max_per_object, rng)
+    def new_checker(gripper: str) -> CollisionChecker:
+        return CollisionChecker(spec, load_gripper(gripper), prefilter)
+
+    parts = [_place_object(scene, index, sets[name], new_checker, checkers, params.max_per_object, rng)
              for index, name in enumerate(scene.object_names)
              if sets[name] is not None and len(sets[name]["grasp_id"])]
     t2 = time.perf_counter()

@@ -22,7 +22,7 @@ whose rollout succeeded (outcome 5), ``num_perturbations`` perturbed copies are 
   and (unless ``metrics.epsilon.friction`` fixes one) its own friction.
 
   A copy with any object perturbation builds its own :class:`graspgen.sim.lift.LiftSimulator`
-  (:func:`graspgen.workflows.perturbed_copies.with_object_pose`, a copy of the compiled model, ~1 ms); with every
+  (:func:`graspgen.sim.perturbed_copies.with_object_pose`, a copy of the compiled model, ~1 ms); with every
   object sigma 0 and no ``object_noise`` the copies share the nominal model.
 
 Labels per grasp: ``robustness`` = successes / n, the fraction of copies with outcome 5 (never an average of outcome
@@ -97,17 +97,17 @@ from graspgen.quality.perturbation import (
 from graspgen.quality.resting import resting_com_offset
 from graspgen.quality.statistics import wilson_interval
 from graspgen.sim.lift import LiftSimulator
-from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams, Outcome, RolloutResult
-from graspgen.sim.scene_model import object_body_name
-from graspgen.validation import check_instance
-from graspgen.workflows.metrics import check_joined, object_geometry
-from graspgen.workflows.perturbed_copies import (
+from graspgen.sim.perturbed_copies import (
     initial_object_pose,
     rollout_with_object_pose,
     support_points,
     target_friction,
     with_object_pose,
 )
+from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams, Outcome, RolloutResult
+from graspgen.sim.scene_model import object_body_name
+from graspgen.validation import check_instance
+from graspgen.workflows.metrics import check_joined, object_geometry
 from graspgen.workflows.robustness_columns import LABEL_FIELDS, LABELS, RADIUS_AXES, GraspRobustness, robustness_columns
 
 __all__ = [

@@ -64,18 +64,15 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-import mujoco
 import numpy as np
 
 from graspgen.errors import InputError, SimulationError
 from graspgen.io.objects import ObjectRecord
 from graspgen.sim.camera import Camera, backproject, camera_on_sphere, depth_noise, transform_points
 from graspgen.sim.gl import require_rendering
-from graspgen.sim.physics import PhysicsOptions
-from graspgen.sim.render import RenderedView, SceneRenderer
-from graspgen.sim.scene_model import SEG_GROUND, build_scene_spec, placed_object
-from graspgen.sim.scene_state import object_poses, set_object_poses
-from graspgen.sim.settle import settle
+from graspgen.sim.render import RenderedView
+from graspgen.sim.scene_model import SEG_GROUND, placed_object
+from graspgen.sim.scene_world import SettledScene, object_rgba, render_views, rest_poses, settle_scene
 from graspgen.sim.support import support_boxes
 from graspgen.validation import settings_dict
 from graspgen.workflows.scene_params import CameraParams, DepthNoiseParams, ScenesParams
@@ -123,20 +120,17 @@ def _settled_scene(
     params: ScenesParams,
     counts: SceneCounts,
     image_size: tuple[int, int],
-) -> tuple[list[Placement], mujoco.MjModel, mujoco.MjData, float] | None:
+) -> tuple[list[Placement], SettledScene] | None:
     """Settle ``placements``; remove unstable objects and settle again until all rest (None: retry the scene)."""
     lo, _ = params.count_range
     minimum = len(params.objects) if params.choice == "fixed" else lo
     while True:
         objs = [placed_object(records[p.name], p.pose, p.friction) for p in placements]
-        model = build_scene_spec(objs, params.support, PhysicsOptions(), image_size=image_size).compile()
-        data = mujoco.MjData(model)
-        mujoco.mj_forward(model, data)
-        result = settle(model, data, params.settle)
-        poses = object_poses(model, data)
-        bad = _unstable(placements, records, poses, result.moving(params.settle), params)
+        settled = settle_scene(objs, params.support, params.settle, image_size)
+        result = settled.result
+        bad = _unstable(placements, records, result.poses, result.moving(params.settle), params)
         if not bad:
-            return placements, model, data, result.time
+            return placements, settled
         for reason in bad.values():
             setattr(counts, f"unstable_{reason}", getattr(counts, f"unstable_{reason}") + 1)
         if params.on_unstable == "retry":
@@ -199,13 +193,14 @@ def make_scene(
     counts = SceneCounts()
     cams = params.cameras
     settled, t_settle = _draw_settled(scene_id, params, library, load_object, rng, records, counts)
-    placements, model, data, settle_time = settled
-    poses = object_poses(model, data)
-    set_object_poses(model, data, poses)  # at rest: zero velocities, as a downstream stage will load it
+    placements, scene = settled
+    settle_time = scene.result.time
+    poses = rest_poses(scene)  # at rest: zero velocities, as a downstream stage will load it
     t_sample = time.perf_counter() - t0 - t_settle
     cameras = _draw_cameras(cams, [records[p.name] for p in placements], poses, rng)
-    views, t_setup, t_render = _render_views(model, data, cams, cameras)
-    tree = _scene_tree(scene_id, params, placements, poses, model, cameras, counts, settle_time, object_key)
+    views, t_setup, t_render = _render_views(scene, cams, cameras)
+    rgba = object_rgba(scene, [p.name for p in placements])
+    tree = _scene_tree(scene_id, params, placements, poses, rgba, cameras, counts, settle_time, object_key)
     if views:
         tree["images"] = _images(views, cams.depth_noise, rng)
         if cams.clouds != "none":
@@ -232,7 +227,7 @@ def _draw_settled(
     rng: np.random.Generator,
     records: dict[str, ObjectRecord],
     counts: SceneCounts,
-) -> tuple[tuple[list[Placement], mujoco.MjModel, mujoco.MjData, float], float]:
+) -> tuple[tuple[list[Placement], SettledScene], float]:
     """Draw, place and settle the scene until a draw holds (at most ``max_scene_tries``): (the settled scene, the
     seconds spent settling). Loads each drawn object into ``records`` once; SimulationError when no draw holds."""
     image_size = (params.cameras.width, params.cameras.height)
@@ -284,20 +279,13 @@ def _draw_cameras(
 
 
 def _render_views(
-    model: mujoco.MjModel, data: mujoco.MjData, cams: CameraParams, cameras: Sequence[Camera]
+    scene: SettledScene, cams: CameraParams, cameras: Sequence[Camera]
 ) -> tuple[list[RenderedView], float, float]:
     """(the views of ``cameras``, seconds to set the renderer up, seconds rendering); nothing without
     ``cams.render``."""
-    t_setup = t_render = 0.0
-    views = []
     if cams.render and cameras:
-        t2 = time.perf_counter()
-        with SceneRenderer(model, cams.width, cams.height) as renderer:
-            t3 = time.perf_counter()
-            views = [renderer.render(data, cam) for cam in cameras]
-            t_render = time.perf_counter() - t3
-        t_setup = time.perf_counter() - t2 - t_render
-    return views, t_setup, t_render
+        return render_views(scene, cams.width, cams.height, cameras)
+    return [], 0.0, 0.0
 
 
 def _scene_tree(
@@ -305,7 +293,7 @@ def _scene_tree(
     params: ScenesParams,
     placements: Sequence[Placement],
     poses: np.ndarray,
-    model: mujoco.MjModel,
+    rgba: np.ndarray,
     cameras: Sequence[Camera],
     counts: SceneCounts,
     settle_time: float,
@@ -314,7 +302,6 @@ def _scene_tree(
     """The shard tree without images and clouds: attributes, objects, support and cameras (module docstring)."""
     cams = params.cameras
     n, v = len(placements), len(cameras)
-    rgba = np.array([model.geom_rgba[model.geom(f"obj/{i}_{p.name}/visual").id] for i, p in enumerate(placements)])
     boxes = support_boxes(params.support)
     return {
         "@attrs": {
@@ -338,7 +325,7 @@ def _scene_tree(
             "placed_poses": np.array([p.pose for p in placements], dtype=np.float64).reshape(n, 4, 4),
             "friction": np.array([p.friction for p in placements], dtype=np.float64),
             "stable_pose_index": np.array([p.pose_index for p in placements], dtype=np.int32),
-            "rgba": rgba.astype(np.float32).reshape(n, 4),
+            "rgba": rgba,
         },
         "support": {
             "@attrs": {

@@ -14,9 +14,9 @@ import pytest
 import trimesh
 
 from graspgen.errors import InputError, SettingsError
-from graspgen.geometry.prepare import prepare_object
 from graspgen.io.objects import MANIFEST_COLUMNS, ManifestEntry, read_object_manifest
 from graspgen.io.scenes import read_scene
+from graspgen.workflows.prepare import prepare_object
 from graspgen.workflows.scenes import make_scene
 from pipeline.config import load_config
 from pipeline.errors import ConfigError
@@ -26,7 +26,7 @@ from pipeline.scheduler import run_pipeline
 from pipeline.stage import Upstream
 from pipeline.status import status
 from pipeline.store import stage_dir
-from stages.objects import ASSETS, ObjectsParams, ObjectsStage, catalog, object_sources
+from stages.objects import ASSETS, ObjectsParams, ObjectsStage, catalog, selected_objects
 from stages.project import PROJECT
 
 CHEAP = [
@@ -154,12 +154,12 @@ def test_manifest_objects_join_bundled_and_paths_with_unique_names(meshes, tmp_p
     extra.mkdir()
     trimesh.creation.box((0.05, 0.05, 0.05)).export(extra / "cube.obj")
     params = ObjectsParams(paths=(str(extra / "*.obj"),), manifest=str(manifest), densities={"post_mm": 900.0})
-    sources = {s.name: s for s in object_sources(params)}
+    sources = {s.name: s for s in selected_objects(params)}
     assert set(sources) == set(catalog()) | {"cube", "crate", "post_mm"}
     assert (sources["crate"].mass, sources["crate"].density, sources["crate"].friction) == (0.25, None, 0.6)
     assert (sources["post_mm"].density, sources["post_mm"].friction) == (900.0, None)  # densities still apply
     assert sources["cube"].density == 700.0 and sources["cube"].friction is None
-    only = {s.name for s in object_sources(ObjectsParams(manifest=str(manifest), include=("crate", "box")))}
+    only = {s.name for s in selected_objects(ObjectsParams(manifest=str(manifest), include=("crate", "box")))}
     assert only == {"crate", "box"}
 
     clash = write(meshes / "clash.csv", f"{HEADER}\nmeshes/crate.obj,box,,,,,\n")
@@ -168,16 +168,16 @@ def test_manifest_objects_join_bundled_and_paths_with_unique_names(meshes, tmp_p
         match=r"objects.manifest: .*clash.csv: row 1, column 'name': the name 'box' is "
         r"already taken by .*box.obj \(bundled\); names must be unique",
     ):
-        object_sources(ObjectsParams(manifest=str(clash)))
+        selected_objects(ObjectsParams(manifest=str(clash)))
     with pytest.raises(ConfigError, match=r"the name 'cube' is already taken by .*cube.obj \(objects.paths\)"):
-        object_sources(
+        selected_objects(
             ObjectsParams(
                 paths=(str(extra / "*.obj"),),
                 manifest=str(write(meshes / "clash2.csv", f"{HEADER}\nmeshes/crate.obj,cube,,,,,\n")),
             )
         )
     with pytest.raises(ConfigError, match=r"^objects.manifest: .*bad.csv: row 1 \(line 2\), column 'friction'"):
-        object_sources(ObjectsParams(manifest=str(write(meshes / "bad.csv", f"{HEADER}\nmeshes/crate.obj,,,,,x,\n"))))
+        selected_objects(ObjectsParams(manifest=str(write(meshes / "bad.csv", f"{HEADER}\nmeshes/crate.obj,,,,,x,\n"))))
 
 
 def test_gen_run_reports_a_bad_manifest_in_one_line(meshes, tmp_path):

@@ -25,7 +25,7 @@ from pipeline.keys import canonical_json
 from pipeline.plan import plan
 from pipeline.stage import RunContext, Upstream
 from stages.config import Config
-from stages.objects import ObjectsParams, ObjectsStage, object_sources
+from stages.objects import ObjectsParams, ObjectsStage, selected_objects
 
 PARAMS = ProceduralParams(count=16, seed=7, size_range=(0.04, 0.1), max_grasp_width=0.055)
 
@@ -132,7 +132,7 @@ def test_config_rejects_objects_wider_than_the_grippers_open():
 
 def test_procedural_source_yields_keyed_tasks_without_files(tmp_path):
     params = ObjectsParams(bundled=False, procedural=ProceduralParams(count=5, seed=3))
-    sources = object_sources(params)
+    sources = selected_objects(params)
     assert [s.name for s in sources] == sorted(f"{FAMILIES[i % 4]}_s3_{i:05d}" for i in range(5))
     assert all(s.inputs() == () and s.payload()["procedural"] == s.shape.spec() for s in sources)
     upstream = Upstream(tmp_path, {})
@@ -140,7 +140,7 @@ def test_procedural_source_yields_keyed_tasks_without_files(tmp_path):
     assert keys == {t.task.id: t.key for t in plan(ObjectsStage(), params, upstream)}
     other = dataclasses.replace(params, procedural=ProceduralParams(count=5, seed=4))
     assert not set(keys.values()) & {t.key for t in plan(ObjectsStage(), other, upstream)}
-    both = object_sources(dataclasses.replace(params, bundled=True))
+    both = selected_objects(dataclasses.replace(params, bundled=True))
     assert {"box", "blob_s3_00001"} <= {s.name for s in both}
 
 

@@ -18,7 +18,6 @@ import trimesh
 
 from graspgen.errors import InputError, SettingsError
 from graspgen.geometry.antipodal import AntipodalParams, sample_antipodal
-from graspgen.geometry.prepare import prepare_object
 from graspgen.geometry.stable_poses import StablePoseParams
 from graspgen.grippers import load_gripper
 from graspgen.io.acronym import FIRM_KEY, FLEX_MOTION, read_acronym
@@ -38,6 +37,7 @@ from graspgen.io.objects import object_tree, read_object
 from graspgen.workflows.evaluate import evaluate_grasps
 from graspgen.workflows.evaluate_settings import CHEAP_COACD
 from graspgen.workflows.object_grasps import SCHEMA
+from graspgen.workflows.prepare import prepare_object
 from tests.paths import REPO
 
 ASSETS = REPO / "assets" / "objects"

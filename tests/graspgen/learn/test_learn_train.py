@@ -148,8 +148,11 @@ def test_run_probe_report():
     from graspgen.learn.probe import ProbeParams, run_probe
 
     sets = _boxes(10, 20)
-    model, report = run_probe(sets, ProbeParams(valid_fraction=0.5, salt="t", features=SMALL,
-                                                train=TrainParams(epochs=2, batch_size=32)))
+    # SMALL's features and TrainParams(epochs=2, batch_size=32) with its defaults (seed 0, one thread)
+    params = ProbeParams(valid_fraction=0.5, salt="t", num_surface_points=SMALL.num_surface_points,
+                         num_points=SMALL.num_points, epochs=2, batch_size=32)
+    assert params.features == SMALL
+    model, report = run_probe(sets, params, seed=0)
     split = report["split"]
     assert set(split["train_objects"]).isdisjoint(split["valid_objects"])
     assert split["train_grasps"] + split["valid_grasps"] == 200

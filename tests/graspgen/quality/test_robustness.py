@@ -18,7 +18,6 @@ from scipy.stats import binomtest
 
 from graspgen.errors import SettingsError
 from graspgen.geometry.contacts import closing_contacts
-from graspgen.geometry.prepare import prepare_object
 from graspgen.grippers import load_gripper
 from graspgen.io.objects import ObjectRecord
 from graspgen.quality.contact_noise import MetricsParams
@@ -35,16 +34,17 @@ from graspgen.quality.resting import _project_onto_halfspaces, resting_com_offse
 from graspgen.quality.statistics import wilson_interval
 from graspgen.sim.gripper_model import attach_gripper
 from graspgen.sim.lift import LiftSimulator
-from graspgen.sim.protocols import LiftParams
-from graspgen.sim.scene_model import build_scene_spec, object_body_name, placed_object
-from graspgen.sim.support import SupportParams
-from graspgen.workflows.metrics import object_geometry
-from graspgen.workflows.perturbed_copies import (
+from graspgen.sim.perturbed_copies import (
     initial_object_pose,
     rollout_with_object_pose,
     support_points,
     with_object_pose,
 )
+from graspgen.sim.protocols import LiftParams
+from graspgen.sim.scene_model import build_scene_spec, object_body_name, placed_object
+from graspgen.sim.support import SupportParams
+from graspgen.workflows.metrics import object_geometry
+from graspgen.workflows.prepare import prepare_object
 from graspgen.workflows.robustness import GRIP_CODES, SCHEMA, grasp_robustness
 from graspgen.workflows.robustness_columns import LABELS, RADIUS_AXES, GraspRobustness, robustness_columns, rows_at
 from pipeline.config import load_config

@@ -36,7 +36,6 @@ import pytest
 import trimesh
 
 from graspgen.geometry.convex import CoacdParams
-from graspgen.geometry.prepare import prepare_object
 from graspgen.grippers import load_gripper
 from graspgen.sim import prefilter as P
 from graspgen.sim.gripper_model import attach_gripper
@@ -47,6 +46,7 @@ from graspgen.sim.scene_model import PlacedObject, build_scene_spec, object_body
 from graspgen.sim.scene_state import object_poses
 from graspgen.sim.settle import SettleParams, settle
 from graspgen.sim.support import SupportParams
+from graspgen.workflows.prepare import prepare_object
 from tests.paths import REPO
 
 ROOT = REPO
