@@ -71,7 +71,8 @@ def test_the_dataset_section_takes_the_card_keys_at_its_own_level():
     card's keys beside the section's own, as they were before the card had a settings class of its own."""
     cfg = load_config(Schema, None, ["dataset.plots=false", "dataset.histogram_bins=7", "dataset.acronym=false"])
     assert cfg.dataset.card == CardSettings(plots=False, histogram_bins=7) and cfg.dataset.acronym is False
-    flat = ["row_group_rows", "acronym", "graspgen", "plots", "histogram_bins", "example_scenes", "example_grasps"]
+    flat = ["row_group_rows", "acronym", "graspgen", "contact_graspnet", "plots", "histogram_bins", "example_scenes",
+            "example_grasps"]
     assert list(to_dict(cfg.dataset)) == flat
     assert [line.split(":")[0] for line in to_yaml(cfg.dataset).splitlines() if not line.startswith("#")] == flat
     assert json.loads(canonical_json(cfg.dataset)) == to_dict(cfg.dataset)
