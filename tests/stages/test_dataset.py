@@ -495,6 +495,24 @@ def test_a_damaged_shard_is_named_by_status_and_only_it_is_run_again(run, tmp_pa
     assert invoke("validate", out).exit_code == 0
 
 
+def test_the_card_says_which_gripper_and_which_grasps_each_part_covers(run):
+    root, _ = run
+    card = json.loads((root / "out" / "dataset" / "card.json").read_text())
+    md = render_card(card)
+    assert card["object_sets"]["grippers"] == ["panda"] and card["counts"]["grippers"] == ["robotiq_2f85_mesh"]
+    headline = md.split("\n")[2]
+    assert "by the gripper robotiq_2f85_mesh" in headline and "of the gripper panda" in headline
+    assert "pfc, the probability of force closure" in headline  # defined where it is first used
+    assert "What covers what: `grasps.parquet` and the sections Outcomes, Per object, Scene grasps, Labels" in md
+    table = md.index("| object | grasps | positives |")
+    assert md.index("reached: whether") < table and md.index("near misses (`balanced`") < table
+    assert "This split is the probe's own" in md and "| `contact_graspnet/` |" in md
+    placed = dict(card["object_sets"]["placed"], rescene_checked=10, rescene_changed=3, rescene_change_rate=0.3,
+                  rescene_lost=0.39, rescene_gained=0.1)
+    text = render_card({**card, "object_sets": {**card["object_sets"], "placed": placed}})
+    assert "positives lost 39%" in text and "not as picked up in that scene" in text
+
+
 def test_the_card_lists_the_warnings(run):
     root, _ = run
     card = json.loads((root / "out" / "dataset" / "card.json").read_text())

@@ -97,3 +97,17 @@ def test_stray_files_are_the_unlisted_files_of_the_dataset_folders(tmp_path):
     assert stray_files(tmp_path, listed) == ["scenes/b.h5", "acronym/meshes/x.obj", "plots/link.png",
                                              "plots/old.png"]
     assert stray_files(tmp_path / "nothing", listed) == []
+
+
+def test_the_scene_grasps_total_counts_scenes_not_object_scene_pairs():
+    from graspgen.io.card_grasps import scene_grasp_counts, scene_grasps_lines
+
+    def entry(name):
+        return {"object_name": name, "tried": 5, "unreachable": {"ground": 0, "target": 0},
+                "prefilter": {"collision_with_ground": 0, "collision_with_target": 0, "collision_with_clutter": 0},
+                "kept": {"free": 2, "collisions": 0}, "stopped": "target"}
+
+    section = scene_grasp_counts([{"objects": [entry("a"), entry("b")]}, {"objects": [entry("a")]}, {}])
+    assert section["objects"]["a"]["scenes"] == 2 and section["objects"]["b"]["scenes"] == 1
+    assert section["total"]["scenes"] == 2 and section["total"]["object_scenes"] == 3
+    assert any(line.startswith("| all | 2 | 15 |") for line in scene_grasps_lines(section))
