@@ -17,7 +17,8 @@ checkout) is run on each exported grasp too, and its contacts are compared with 
 
 Checks, per scene file (its scene found by ``splits/scenes.json``'s ``files``, the sorted order the loader reads):
 
-* counts: one file per published scene; the positives plus the other rows are the scene's rows of the source table
+* counts: one file per published scene with a positive (the others listed as left out); the held-out scenes are
+  the last ``num_test_scenes`` files; the positives plus the other rows are the scene's rows of the source table
   (``placed_grasps.parquet`` or ``grasps.parquet``, the file's ``source``); positives are exactly its successes whose
   two contact rays hit;
 * poses: each positive's ``grasp_transforms @ Trans(0, 0, 0.1034)`` less the table shift is its row's
@@ -152,13 +153,19 @@ def check(dataset: Path, src: Path) -> dict[str, Any]:
     folder = dataset / "contact_graspnet"
     data, mesh_utils, stubbed = load_upstream(src)
     infos = data.load_scene_contacts(str(folder), scene_contacts_path="scene_contacts")
-    files = json.loads((folder / "splits" / "scenes.json").read_text())["files"]
+    split = json.loads((folder / "splits" / "scenes.json").read_text())
+    files, left_out = split["files"], split["left_out"]
     scenes = sorted(p.stem for p in (dataset / "scenes").glob("*.h5"))
     report: dict[str, Any] = {"stubbed": stubbed, "scenes": len(scenes), "files_loaded": len(infos),
-                              "upstream_contacts": "tqdm" not in stubbed, "failures": [], "per_scene": []}
+                              "left_out": left_out, "upstream_contacts": "tqdm" not in stubbed, "failures": [],
+                              "per_scene": []}
     fail = report["failures"]
-    if len(infos) != len(scenes) or len(files) != len(scenes):
-        fail.append(f"{len(infos)} files loaded, {len(files)} listed, {len(scenes)} scenes published")
+    if len(infos) != len(files) or len(files) + len(left_out) != len(scenes):
+        fail.append(f"{len(infos)} files loaded, {len(files)} listed + {len(left_out)} left out, {len(scenes)} "
+                    "scenes published")
+    if split["num_test_scenes"] != sum("_test_" in f for f in files) or files[len(files) - len(split["test"]):] != \
+            [f for f in files if "_test_" in f]:
+        fail.append("the held-out scenes are not the last num_test_scenes files")
     err = {"pose": 0.0, "object": 0.0, "surface": 0.0, "line": 0.0, "upstream": 0.0}
     tables: dict[str, dict] = {}
     for info, name in zip(infos, files):
@@ -244,8 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     report = check(dataset, checkout(args.source))
     totals = {k: sum(s.get(k, 0) for s in report["per_scene"])
               for k in ("rows", "successes", "positives", "successes_without_contacts")}
-    print(f"Contact-GraspNet load_scene_contacts: {report['files_loaded']} scene files for {report['scenes']} scenes; "
-          f"stubbed (never called): {', '.join(report['stubbed']) or 'none'}")
+    print(f"Contact-GraspNet load_scene_contacts: {report['files_loaded']} scene files for {report['scenes']} scenes "
+          f"({len(report['left_out'])} left out: no positive); stubbed (never called): "
+          f"{', '.join(report['stubbed']) or 'none'}")
     print(f"rows {totals['rows']}, successes {totals['successes']}, exported positives {totals['positives']}, "
           f"successes without two contacts {totals['successes_without_contacts']}")
     print("largest errors: " + ", ".join(f"{k} {v:.3g}" for k, v in report["max_errors"].items())

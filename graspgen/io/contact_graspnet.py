@@ -7,9 +7,11 @@ with ``numpy.load(allow_pickle=False)`` and keeps five keys; its ``PointCloudRea
 :func:`export_contact_graspnet` writes a published dataset's scenes that way::
 
     <root>/contact_graspnet/                      Contact-GraspNet's ``dataset_folder`` (``DATA.data_path``)
-        scene_contacts/<rank:06d>_<scene_id>.npz  one per scene (``scene_contacts_path='scene_contacts'``)
+        scene_contacts/0_train_<scene_id>.npz     one per scene with positives (``scene_contacts_path``), training
+        scene_contacts/1_test_<scene_id>.npz      scenes first in name order, then the held-out ones
         meshes/<object>.obj                       the object meshes, metres (``obj_scales`` 1)
-        splits/scenes.json                        {"train": [scene ids], "test": [...], "num_test_scenes": k}
+        splits/scenes.json                        {"train": [scene ids], "test": [...], "num_test_scenes": k,
+                                                   "files": [...], "left_out": {scene id: why}}
         splits/objects.json                       {"train": [object names], "test": [...]}
 
 The keys Contact-GraspNet reads, per scene file (float64):
@@ -52,10 +54,14 @@ sorted by object index, then grasp id. Kept beside, under keys Contact-GraspNet 
 Files are written atomically, each ``.npz`` as a zip with fixed timestamps (``numpy.savez`` stamps the time), so the
 same dataset gives the same bytes. Splits (:func:`graspgen.io.graspgen_format.split_of`, the GraspGen export's hash
 split with the same fraction, ``valid`` named ``test``): Contact-GraspNet holds out the *last*
-``DATA.num_test_scenes`` files by name, so the scene files are numbered train scenes first (by id), then test
-scenes; set ``num_test_scenes`` to ``splits/scenes.json``'s value. Objects recur across scenes, so a test scene holds
-new arrangements of objects also seen in training; ``splits/objects.json`` gives the object split of the GraspGen
-export.
+``DATA.num_test_scenes`` files by name, so training scenes are named ``0_train_*`` and held-out ones ``1_test_*``
+(:func:`scene_file`); set ``num_test_scenes`` to ``splits/scenes.json``'s value. Objects recur across scenes, so a
+test scene holds new arrangements of objects also seen in training; ``splits/objects.json`` gives the object split
+of the GraspGen export.
+
+A scene without a positive gets no file (it is listed in ``splits/scenes.json``'s ``left_out``): Contact-GraspNet's
+``load_contact_grasps`` skips such a scene while its point-cloud reader does not, which would pair every later
+scene's renders with the labels of the scene after it.
 """
 
 from __future__ import annotations
@@ -90,6 +96,7 @@ __all__ = [
     "cgn_contacts",
     "cgn_grasp_from_tcp",
     "export_contact_graspnet",
+    "scene_file",
     "tcp_from_cgn_grasp",
     "write_npz",
 ]
@@ -219,7 +226,7 @@ def export_contact_graspnet(root: Path, *, test_fraction: float = TEST_FRACTION,
     Returns
     -------
     list of str
-        The written files relative to ``root``: meshes, scene files (by rank), then the two split files.
+        The written files relative to ``root``: meshes and scene files (in scene order), then the two split files.
 
     Raises
     ------
@@ -232,10 +239,10 @@ def export_contact_graspnet(root: Path, *, test_fraction: float = TEST_FRACTION,
     scene_files = sorted((root / "scenes").glob("*.h5"))
     scene_ids = [p.stem for p in scene_files]
     split = {sid: "test" if split_of(sid, test_fraction) == "valid" else "train" for sid in scene_ids}
-    ranked = [s for s in scene_ids if split[s] == "train"] + [s for s in scene_ids if split[s] == "test"]
-    rank = {sid: i for i, sid in enumerate(ranked)}
     meshes: dict[str, tuple[trimesh.Trimesh, np.ndarray]] = {}
     written: list[str] = []
+    kept: dict[str, str] = {}
+    left_out: dict[str, str] = {}
     rows_of = _rows_by_scene(path, _columns(source, labels))
     pending = next(rows_of, None)
     for sid in scene_ids:
@@ -248,15 +255,18 @@ def export_contact_graspnet(root: Path, *, test_fraction: float = TEST_FRACTION,
                 meshes[name] = _mesh(root, name)
                 written.append(f"{FOLDER}/meshes/{name}.obj")
         arrays = scene_arrays(sid, names, poses, rows, {n: meshes[n] for n in names}, source, labels, table_top)
-        rel = f"{FOLDER}/{SCENE_CONTACTS}/{rank[sid]:06d}_{sid}.npz"
-        write_npz(root / rel, arrays)
-        written.append(rel)
+        if not len(arrays["grasp_transforms"]):  # Contact-GraspNet needs a positive per scene (module docstring)
+            left_out[sid] = "no positive grasp with two contacts"
+            continue
+        kept[sid] = scene_file(sid, split[sid])
+        write_npz(root / FOLDER / SCENE_CONTACTS / kept[sid], arrays)
+        written.append(f"{FOLDER}/{SCENE_CONTACTS}/{kept[sid]}")
     if pending is not None:
         raise InputError(f"{path}: rows of scene {pending[0]!r}, which has no scenes/{pending[0]}.h5 (or the table is "
                          "not sorted by scene_id)")
-    tests = [s for s in ranked if split[s] == "test"]
-    scenes_split = {"train": ranked[: len(ranked) - len(tests)], "test": tests, "num_test_scenes": len(tests),
-                    "files": [f"{rank[s]:06d}_{s}.npz" for s in ranked]}
+    tests = [s for s in kept if split[s] == "test"]
+    scenes_split = {"train": [s for s in kept if split[s] == "train"], "test": tests, "num_test_scenes": len(tests),
+                    "files": sorted(kept.values()), "left_out": left_out}
     objects_split = {k: sorted(n for n in meshes if (split_of(n, test_fraction) == "valid") == (k == "test"))
                      for k in ("train", "test")}
     for name, data in (("scenes", scenes_split), ("objects", objects_split)):
@@ -264,6 +274,12 @@ def export_contact_graspnet(root: Path, *, test_fraction: float = TEST_FRACTION,
         write_text_atomic(root / rel, json.dumps(data, indent=1) + "\n")
         written.append(rel)
     return written
+
+
+def scene_file(scene_id: str, split: str) -> str:
+    """The scene's file name: ``0_train_<scene_id>.npz`` or ``1_test_<scene_id>.npz``, so that in name order (the
+    order Contact-GraspNet reads and splits them) every held-out scene comes after every training scene."""
+    return f"{0 if split == 'train' else 1}_{split}_{scene_id}.npz"
 
 
 def scene_arrays(scene_id: str, names: list[str], poses: np.ndarray, rows: pa.Table | None,

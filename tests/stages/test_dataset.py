@@ -17,6 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from graspgen.io.card_render import render_card
+from graspgen.io.contact_graspnet import scene_file
 from graspgen.io.dataset_table import COLUMN_DOCS, REQUIRED_SCHEMA
 from graspgen_cli.app import app
 from pipeline.config import load_config, to_dict
@@ -337,11 +338,11 @@ def test_contact_graspnet_export_is_the_placed_positives_of_every_scene(run):
     cgn = d / "contact_graspnet"
     split = json.loads((cgn / "splits" / "scenes.json").read_text())
     files = sorted(p.name for p in (cgn / "scene_contacts").glob("*.npz"))
-    assert files == split["files"] and len(files) == 3  # one per scene, held-out scenes last
-    ranked = split["train"] + split["test"]
-    assert files == [f"{i:06d}_{sid}.npz" for i, sid in enumerate(ranked)] and len(split["test"]) == \
-        split["num_test_scenes"]
-    assert sorted(ranked) == sorted(keys(root / "out", "scenes"))
+    assert files == split["files"] and files  # one per scene with a positive, held-out scenes last in name order
+    assert files == sorted([scene_file(s, "train") for s in split["train"]] + [scene_file(s, "test")
+                                                                                for s in split["test"]])
+    assert len(split["test"]) == split["num_test_scenes"]
+    assert sorted(split["train"] + split["test"] + list(split["left_out"])) == sorted(keys(root / "out", "scenes"))
     placed = pq.read_table(d / "placed_grasps.parquet", columns=["scene_id", "grasp_id", "success"]).to_pandas()
     card = json.loads((d / "card.json").read_text())
     for name in files:
@@ -370,7 +371,7 @@ def test_contact_graspnet_loads_the_export_with_its_own_code(run, tmp_path):
                         capture_output=True, text=True, cwd=REPO)
     assert ok.returncode == 0, ok.stdout + ok.stderr
     report = json.loads((tmp_path / "r.json").read_text())
-    assert report["files_loaded"] == report["scenes"] == 3 and not report["failures"]
+    assert report["files_loaded"] + len(report["left_out"]) == report["scenes"] == 3 and not report["failures"]
     assert {"pyrender", "cv2"} <= set(report["stubbed"]) or report["stubbed"] == []
     bad = tmp_path / "bad"
     shutil.copytree(root / "out" / "dataset", bad)

@@ -22,8 +22,10 @@ from graspgen.io.contact_graspnet import (
     cgn_contacts,
     cgn_grasp_from_tcp,
     export_contact_graspnet,
+    scene_file,
     tcp_from_cgn_grasp,
 )
+from graspgen.io.graspgen_format import split_of
 
 # A 40 x 60 x 100 mm box standing on its base: mesh frame with the base at z = 0, so its vertex mean is (0, 0, 0.05).
 BOX = trimesh.creation.box((0.04, 0.06, 0.10), transform=trimesh.transformations.translation_matrix((0, 0, 0.05)))
@@ -102,7 +104,8 @@ def _down(d):
 def test_export_keys_shapes_and_frames(tmp_path):
     root = write_dataset(tmp_path)
     written = export_contact_graspnet(root)
-    assert written == ["contact_graspnet/meshes/box.obj", "contact_graspnet/scene_contacts/000000_scene_000000.npz",
+    name = scene_file("scene_000000", "train" if split_of("scene_000000", 0.2) == "train" else "test")
+    assert written == ["contact_graspnet/meshes/box.obj", f"contact_graspnet/scene_contacts/{name}",
                        "contact_graspnet/splits/scenes.json", "contact_graspnet/splits/objects.json"]
     z = np.load(root / written[1], allow_pickle=False)  # as Contact-GraspNet's load_scene_contacts reads it
     assert z["scene_contact_points"].shape == (1, 2, 3) and z["grasp_transforms"].shape == (1, 4, 4)
@@ -133,6 +136,20 @@ def test_export_keys_shapes_and_frames(tmp_path):
     assert str(z["source"]) == "placed_grasps" and str(z["scene_id"]) == "scene_000000"
     split = json.loads((root / "contact_graspnet/splits/scenes.json").read_text())
     assert split["train"] + split["test"] == ["scene_000000"] and split["num_test_scenes"] == len(split["test"])
+    assert split["files"] == [name] and split["left_out"] == {}
+
+
+def test_held_out_scenes_sort_last_and_scenes_without_positives_get_no_file(tmp_path):
+    ids = [f"scene_{i:06d}" for i in range(40)]
+    split = {sid: "train" if split_of(sid, 0.2) == "train" else "test" for sid in ids}
+    names = sorted(scene_file(sid, split[sid]) for sid in ids)  # Contact-GraspNet's order: sorted(glob(...))
+    tests = sum(v == "test" for v in split.values())
+    assert 0 < tests < 40 and all("_test_" in n for n in names[-tests:]) and all("_train_" in n for n in names[:-tests])
+    root = write_dataset(tmp_path, success=[False, False, False])
+    written = export_contact_graspnet(root)
+    assert not any("scene_contacts/" in w for w in written)  # its loader would misalign the scenes after it
+    scenes = json.loads((root / "contact_graspnet/splits/scenes.json").read_text())
+    assert scenes["files"] == [] and scenes["left_out"] == {"scene_000000": "no positive grasp with two contacts"}
 
 
 def test_same_dataset_same_bytes(tmp_path):
