@@ -116,7 +116,8 @@ def _file_lines(card: Mapping[str, Any]) -> list[str]:
         what = "placed object-centric grasps" if "placed" in sets else "scene grasps"
         lines.append(f"| `contact_graspnet/` | the scenes as Contact-GraspNet's training data: per scene the positive "
                      f"{what} as its Panda grasp frames and finger contacts, the meshes, the splits (scenes by a hash "
-                     "of the id, held-out scenes numbered last; objects as in `graspgen/`) |")
+                     "of the id, held-out scenes named last; objects as in `graspgen/`; scenes without a positive left "
+                     "out) |")
     if any(k.startswith("probe/") for k in card["files"]):
         lines.append("| `probe/` | `model.pt`, a grasp evaluator trained on the object sets, and `report.json`, its "
                      "held-out scores (Learnability, below) |")
