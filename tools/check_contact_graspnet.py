@@ -51,7 +51,7 @@ import trimesh
 
 DEPTH = 0.1034  # Contact-GraspNet's gripper_depth
 TOL_POSE = 1e-9
-TOL_SURFACE = 1e-6
+TOL_SURFACE = 1e-5  # m: a ray's hit on a sliver triangle may lie microns past its edge (3.6e-6 on the default set)
 TOL_UPSTREAM = 1e-5  # Embree (float32) against our float64 ray casts
 STUBBED = ("tensorflow", "tensorflow.compat", "tensorflow.compat.v1", "pyrender", "cv2", "tqdm")
 
