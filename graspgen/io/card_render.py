@@ -348,7 +348,7 @@ def _object_set_lines(sets: Mapping[str, Any]) -> list[str]:
                 "What it means: a placed label is the object's free-space label and a collision check of the open "
                 "hand at the pose; the approach, the support and the neighbours during the grasp are not simulated. "
                 "The lost share is about how many placed positives would fail if grasped in their scene (an estimate "
-                f"from {p['rescene_checked']} grasps): read a placed positive as held in free space and not blocked "
+                "from the positives of that sample): read a placed positive as held in free space and not blocked "
                 "at the pose, as ACRONYM's scene labels are, not as picked up in that scene; the scene grasps "
                 "(`grasps.parquet`) are the labels simulated in the scene.",
                 "",
