@@ -169,3 +169,25 @@ def test_errors_name_the_file(tmp_path):
     (root / "placed_grasps.parquet").unlink()
     with pytest.raises(InputError, match="grasps.parquet: no grasp table"):
         export_contact_graspnet(root)
+
+
+def test_without_object_sets_the_scene_grasps_are_exported(tmp_path):
+    """No placed_grasps.parquet: the scene grasps of grasps.parquet (positives: outcome 5), their labels beside."""
+    root = write_dataset(tmp_path)
+    placed = pq.read_table(root / "placed_grasps.parquet")
+    (root / "placed_grasps.parquet").unlink()
+    scene = placed.select(["scene_id", "grasp_id", "object_index", "gripper", "pose_object", "pose_world", "width"])
+    scene = scene.append_column("outcome", pa.array([5, 3, 4], pa.int8()))
+    scene = scene.append_column("firm", pa.array([True, False, None]))
+    scene = scene.append_column("robustness", pa.array([0.8, None, None], pa.float64()))
+    pq.write_table(scene, root / "grasps.parquet")
+    written = export_contact_graspnet(root)
+    z = np.load(root / written[1], allow_pickle=False)
+    assert str(z["source"]) == "grasps" and str(z["gripper"]) == "panda"
+    assert z["grasp_ids"].tolist() == [0]
+    assert np.allclose(z["grasp_transforms"][0], cgn_grasp_from_tcp(POSE @ T_OBJ[0])[0])
+    assert z["grasp_outcome"].tolist() == [5] and z["grasp_firm"].tolist() == [True]
+    assert z["grasp_robustness"].tolist() == [0.8]
+    assert z["other_grasp_ids"].tolist() == [1, 2] and z["other_success"].tolist() == [False, False]
+    assert z["other_firm"].tolist() == [False, False] and np.isnan(z["other_robustness"]).all()
+    assert "grasp_scene_code" not in z.files
