@@ -25,6 +25,8 @@ shards as hard links, copies where links are not possible)::
     objects/<name>.h5       the object shards of the library (mesh, convex parts, mass properties, stable poses)
     acronym/<name>.h5       each object's grasps as an ACRONYM grasp file (:mod:`graspgen.io.acronym`), rows in
                             grasps.parquet order; its mesh as acronym/meshes/<name>.obj (the file's object/file)
+    graspgen/               the object sets in GraspGen's layout (:mod:`graspgen.io.graspgen_format`)
+    contact_graspnet/       the scenes as Contact-GraspNet's training data (:mod:`graspgen.io.contact_graspnet`)
     plots/*.png             outcomes, robustness, epsilon, correlation (label columns present), examples
     probe/model.pt          the learnability probe's grasp evaluator (when the probe stage ran); probe/report.json
                             its held-out scores, which the card renders (:mod:`graspgen.io.card_learn`)
@@ -70,6 +72,7 @@ from graspgen.io.acronym_export import export_acronym, export_object_acronym
 from graspgen.io.card import CARD_VERSION, add_file, card_sources, package_versions, write_card
 from graspgen.io.card_grasps import scene_grasp_counts
 from graspgen.io.card_stats import CardSettings, card_stats
+from graspgen.io.contact_graspnet import export_contact_graspnet
 from graspgen.io.dataset_table import (
     FORMAT,
     META_KEY,
@@ -156,6 +159,10 @@ class DatasetParams:
     graspgen: bool = True
     """Also export the object-centric sets in GraspGen's dataset layout (graspgen/: splits and one JSON per
     object; :mod:`graspgen.io.graspgen_format`)."""
+    contact_graspnet: bool = True
+    """Also export the scenes as Contact-GraspNet's training data (contact_graspnet/: one .npz of grasp contacts per
+    scene, the meshes, the splits; the placed object-centric grasps when the object sets ran, else the scene grasps;
+    :mod:`graspgen.io.contact_graspnet`)."""
     card: CardSettings = dataclasses.field(default_factory=CardSettings, metadata={FLATTEN: True})
     """The card and its plots (:class:`graspgen.io.card_stats.CardSettings`: ``plots``, ``histogram_bins``,
     ``example_scenes``, ``example_grasps``, written at this section's level)."""
@@ -164,6 +171,7 @@ class DatasetParams:
         check_positive_int("row_group_rows", self.row_group_rows)
         check_bool("acronym", self.acronym)
         check_bool("graspgen", self.graspgen)
+        check_bool("contact_graspnet", self.contact_graspnet)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -411,13 +419,16 @@ class DatasetStage(GraspStage):
 
 
 def _exports(root: Path, params: DatasetParams, object_sets: Sequence[str]) -> list[str]:
-    """Write the ACRONYM and GraspGen exports the params ask for; returns the files written (relative)."""
+    """Write the ACRONYM, GraspGen and Contact-GraspNet exports the params ask for; returns the files written
+    (relative)."""
     written: list[str] = []
     if params.acronym:  # ACRONYM's meaning (a free-space label per object grasp) where there is one
         export = export_object_acronym if "object_grasps" in object_sets else export_acronym
         written += export(root)
     if params.graspgen and "object_grasps" in object_sets:
         written += export_graspgen(root)
+    if params.contact_graspnet:
+        written += export_contact_graspnet(root)
     return written
 
 

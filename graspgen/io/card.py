@@ -46,10 +46,11 @@ __all__ = [
     "write_card",
 ]
 
-CARD_VERSION = 4
+CARD_VERSION = 5
 """Bump when the card's content or the plots change: published folders are then re-rendered."""
 
-MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots", "graspgen", "graspgen/objects", "probe")
+MANAGED = ("scenes", "objects", "acronym", "acronym/meshes", "plots", "graspgen", "graspgen/objects", "probe",
+           "contact_graspnet", "contact_graspnet/scene_contacts", "contact_graspnet/meshes", "contact_graspnet/splits")
 """Subfolders of a dataset folder that the card owns: files there that it does not list are not part of the
 dataset (:func:`stray_files`), and :func:`write_card` removes them."""
 

@@ -35,10 +35,13 @@ def scene_grasp_counts(metas: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     dict
         ``{"objects": {name: {"scenes", "tried", "unreachable": {ground, target}, "rejected": {cause: n},
         "kept": {free, collisions}, "short" (scenes that stopped short of the target), "tried_per_kept"}},
-        "total": the same summed over objects}``; ``{"objects": {}, "total": None}`` when no shard has counts.
+        "total": the same summed over objects, except "scenes" (distinct scenes with counts) and "object_scenes"
+        (the sum: object-scene pairs)}``; ``{"objects": {}, "total": None}`` when no shard has counts.
     """
     objects: dict[str, dict[str, Any]] = {}
+    scenes = 0
     for meta in metas:
+        scenes += bool(meta.get("objects"))
         for o in meta.get("objects") or ():
             acc = objects.setdefault(str(o["object_name"]), _empty())
             acc["scenes"] += 1
@@ -60,6 +63,8 @@ def scene_grasp_counts(metas: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
                     total[key][k] += v
             else:
                 total[key] += value
+    total["object_scenes"] = total["scenes"]
+    total["scenes"] = scenes  # distinct scenes, not the sum over objects (an object-scene pair each)
     for acc in (*objects.values(), total):
         kept = acc["kept"]["free"] + acc["kept"]["collisions"]
         acc["tried_per_kept"] = round(acc["tried"] / kept, 3) if kept else None
@@ -77,7 +82,9 @@ def scene_grasps_lines(section: Mapping[str, Any] | None) -> list[str]:
         "Per object, over its scenes: candidates tried, screened out before the pre-filter as unreachable "
         "(the hand below the table, or through the target), rejected by the pre-filter (ground, target, clutter; "
         "kept or not) and kept (free: simulated by the rollouts; collisions: labelled, up to "
-        "grasps.collision_share of the rows). Short: scenes that stopped before max_per_object free candidates.",
+        "grasps.collision_share of the rows). Short: scenes that stopped before max_per_object free candidates. "
+        "In the all row, scenes counts distinct scenes; every other column sums the objects' rows (short counts "
+        "object-scene pairs).",
         "",
         "| object | scenes | tried | unreachable ground | unreachable target | rejected ground | rejected target "
         "| rejected clutter | kept free | kept collisions | short | tried per kept |",

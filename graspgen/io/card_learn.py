@@ -105,7 +105,9 @@ def learnability_lines(section: Mapping[str, Any] | None) -> list[str]:
         f"({split.get('valid_grasps', '-')} grasps, base rate {_pct(net.get('base_rate'))} positives): can a network "
         "tell from the object's shape around the jaws which grasps hold? Objects are split by a hash of their name "
         f"(valid fraction {split.get('valid_fraction', '-')}, salt `{split.get('salt', '')}`), so no held-out "
-        "object was seen in training."
+        "object was seen in training. This split is the probe's own: the GraspGen export's (`graspgen/splits/`, "
+        "and the object split of `contact_graspnet/`) hashes the name alone with 20% valid, so an object held out "
+        "here may be a training object there."
         + (f" It learned the sets' `{section['label']}` label (`object_grasps.label`)." if section.get("label")
            else "")
         + (f" The model is `{section['model']}` (`gen probe eval --model` scores other grasps with it)."
@@ -125,7 +127,9 @@ def learnability_lines(section: Mapping[str, Any] | None) -> list[str]:
     if top:
         lines += ["", f"Top-k: per held-out object, the success rate of its {top.get('k', '-')} best-scored grasps, "
                   f"averaged over {top.get('objects', '-')} objects; a random grasp of the same objects succeeds "
-                  f"{_pct(top.get('random'))} of the time."]
+                  f"{_pct(top.get('random'))} of the time. Grasps of equal score count at their expected value "
+                  "over a random order (`graspgen.learn.report.top_k_success`), so a scorer that gives an object's "
+                  "grasps one score (the per-object and base rates) scores exactly random."]
     gbt = {o["name"]: o for o in (baselines.get("gbt") or {}).get("per_object", [])}
     lines += ["", "| held-out object | grasps | positives | network AUC | trees AUC |",
               "| --- | ---: | ---: | ---: | ---: |"]

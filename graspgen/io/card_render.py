@@ -49,17 +49,34 @@ def render_card(card: Mapping[str, Any]) -> str:
 
 
 def _intro_lines(card: Mapping[str, Any]) -> list[str]:
-    """The title and what the dataset is, its key and how to check and read it."""
+    """The title, what the dataset is (the scene grasps' gripper and the object sets' gripper, and which sections
+    cover which), its key and how to check and read it."""
     c = card["counts"]
+    sets = card.get("object_sets", {})
+    scene_gripper = ", ".join(c["grippers"]) or "-"
+    set_gripper = ", ".join(sets.get("grippers") or []) or "-"
     lines = ["# Dataset card", ""]
     lines += [
-        f"A grasp dataset made by graspgen {card['versions'].get('graspgen', '?')}: {c['grasps']} grasps of "
-        f"{c['objects_with_grasps']} objects in {c['scenes']} scenes ({c['views']} camera views), gripper "
-        f"{', '.join(c['grippers']) or '-'}, each labelled by a simulated grasp-and-lift"
-        + (", perturbed copies (robustness, pfc)" if "robustness" in card["labels"] else "")
+        f"A grasp dataset made by graspgen {card['versions'].get('graspgen', '?')}: {c['grasps']} scene grasps of "
+        f"{c['objects_with_grasps']} objects in {c['scenes']} scenes ({c['views']} camera views) by the gripper "
+        f"{scene_gripper}, each labelled by a simulated grasp-and-lift in its scene"
+        + (", perturbed copies (robustness: the share of the copies still held; pfc, the probability of force "
+           "closure: the share with epsilon above delta)" if "robustness" in card["labels"] else "")
         + (" and the Ferrari-Canny epsilon" if "epsilon" in card["labels"] else "")
-        + ".",
+        + "."
+        + (f" Beside them, object-centric grasp sets of the gripper {set_gripper}, labelled in free space and placed "
+           "in the scenes." if "objects" in sets else ""),
         "",
+    ]
+    if "objects" in sets:
+        lines += [
+            f"What covers what: `grasps.parquet` and the sections Outcomes, Per object, Scene grasps, Labels and Plots "
+            f"are the scene grasps ({scene_gripper}); `object_grasps.parquet`, `placed_grasps.parquet`, the "
+            "exports (ACRONYM, GraspGen, Contact-GraspNet) and the sections Object-centric grasp sets and "
+            f"Learnability are the object-centric sets ({set_gripper}).",
+            "",
+        ]
+    lines += [
         f"Dataset key `{card['dataset_key']}` (the content key of `grasps.parquet`; it changes with any input, "
         "parameter or stage version). Check the files with `gen validate <folder>`; read them with "
         "`graspgen.io.reader.open_dataset(<folder>)`, pandas, polars, duckdb or h5py.",
@@ -93,7 +110,14 @@ def _file_lines(card: Mapping[str, Any]) -> list[str]:
         what = "object-centric set (free-space labels)" if "objects" in sets else "grasps"
         lines.append(f"| `acronym/<name>.h5` | each object's {what} in the ACRONYM format (mesh: `acronym/meshes/`) |")
     if any(k.startswith("graspgen/") for k in card["files"]):
-        lines.append("| `graspgen/` | the object-centric sets in GraspGen's layout (splits, one JSON per object) |")
+        lines.append("| `graspgen/` | the object-centric sets in GraspGen's layout (one JSON per object; splits: an "
+                     "object is `valid` when a hash of its name alone falls in the lowest 20%) |")
+    if any(k.startswith("contact_graspnet/") for k in card["files"]):
+        what = "placed object-centric grasps" if "placed" in sets else "scene grasps"
+        lines.append(f"| `contact_graspnet/` | the scenes as Contact-GraspNet's training data: per scene the positive "
+                     f"{what} as its Panda grasp frames and finger contacts, the meshes, the splits (scenes by a hash "
+                     "of the id, held-out scenes named last; objects as in `graspgen/`; scenes without a positive left "
+                     "out) |")
     if any(k.startswith("probe/") for k in card["files"]):
         lines.append("| `probe/` | `model.pt`, a grasp evaluator trained on the object sets, and `report.json`, its "
                      "held-out scores (Learnability, below) |")
@@ -110,6 +134,9 @@ def _outcome_lines(card: Mapping[str, Any]) -> list[str]:
     c = card["counts"]
     lines = [
         "## Outcomes",
+        "",
+        f"The scene grasps (`grasps.parquet`, gripper {', '.join(c['grippers']) or '-'}) by the outcome of their "
+        "rollout in the scene.",
         "",
         "| code | outcome | grasps | share |",
         "| ---: | --- | ---: | ---: |",
@@ -128,7 +155,7 @@ def _outcome_lines(card: Mapping[str, Any]) -> list[str]:
         rate = "-" if o["success_rate"] is None else f"{100 * o['success_rate']:.1f}%"
         counts = " | ".join(str(n) for n in o["outcomes"])
         lines.append(f"| {name} | {o['scenes']} | {o['grasps']} | {counts} | {rate} |")
-    lines += ["", "Columns 0-5 are the outcome codes above.", ""]
+    lines += ["", "Scene grasps per object; columns 0-5 are the outcome codes above.", ""]
     return lines
 
 
@@ -138,7 +165,8 @@ def _label_lines(card: Mapping[str, Any]) -> list[str]:
     if not card["labels"]:
         return lines + ["No label columns beyond the outcome (the robustness and metrics stages were not joined).", ""]
     lines += [
-        "Over the grasps where the label is defined (robustness and pfc: successful grasps).",
+        "Of the scene grasps (`grasps.parquet`), over the grasps where the label is defined (robustness and pfc: "
+        "successful grasps; pfc is the share of the perturbed copies in force closure).",
         "",
         "| label | n | mean | std | min | 5% | median | 95% | max |",
         "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
@@ -190,7 +218,7 @@ def _correlation_lines(corr: Mapping[str, Any]) -> list[str]:
 def _plot_lines(card: Mapping[str, Any]) -> list[str]:
     if not card["plots"]:
         return []
-    lines = ["## Plots", ""]
+    lines = ["## Plots", "", "Of the scene grasps (`grasps.parquet`).", ""]
     for rel in card["plots"]:
         lines.append(f"![{Path(rel).stem}]({rel})")
         lines.append("")
@@ -279,7 +307,10 @@ def _object_set_lines(sets: Mapping[str, Any]) -> list[str]:
             f"Selection: {', '.join(selections)} (`natural`: every candidate that does not collide at placement, "
             "kept whatever its outcome, so the positive share is the sampler's own, and collisions within "
             "`collision_share` of the negatives; `balanced`: kept until positive and negative targets were met). "
-            f"Positives by the `{', '.join(labels)}` label (`object_grasps.label`).",
+            f"Positives by the `{', '.join(labels)}` label (`object_grasps.label`). Tried: candidates rolled out; "
+            "reached: whether the set met its targets before `max_candidates` were tried; near misses (`balanced` "
+            "only): copies of grasps that held, shifted past the contact or tilted, kept as hard negatives, and "
+            "their success the share of them that still held.",
             "",
             f"Outcome mix of the {kept} kept grasps: " + ", ".join(
                 f"{OBJECT_SET_MIX[k]} {mix[k]} ({_share(mix[k], kept)})" for k in OBJECT_SET_MIX) + ".",
@@ -313,7 +344,13 @@ def _object_set_lines(sets: Mapping[str, Any]) -> list[str]:
                 f"(table protocol); the label changed for {p['rescene_changed']} "
                 f"({fmt(None if p['rescene_change_rate'] is None else 100 * p['rescene_change_rate'])}%): "
                 f"positives lost {fmt(None if p['rescene_lost'] is None else 100 * p['rescene_lost'])}%, "
-                f"negatives gained {fmt(None if p['rescene_gained'] is None else 100 * p['rescene_gained'])}%.",
+                f"negatives gained {fmt(None if p['rescene_gained'] is None else 100 * p['rescene_gained'])}%. "
+                "What it means: a placed label is the object's free-space label and a collision check of the open "
+                "hand at the pose; the approach, the support and the neighbours during the grasp are not simulated. "
+                "The lost share is about how many placed positives would fail if grasped in their scene (an estimate "
+                "from the positives of that sample): read a placed positive as held in free space and not blocked "
+                "at the pose, as ACRONYM's scene labels are, not as picked up in that scene; the scene grasps "
+                "(`grasps.parquet`) are the labels simulated in the scene.",
                 "",
             ]
     return lines

@@ -304,16 +304,21 @@ def _streamed_summary(path: Path, column: str, m: Moments, sample: np.ndarray, b
 def object_set_stats(root: Path, files: Mapping[str, Any]) -> dict[str, Any]:
     """What the card says of the object-centric sets, when ``files`` lists them (else an empty dict).
 
-    ``objects``: per object the grasps kept, positives and negatives, the targets and the candidates tried (from
-    the file's metadata: how far each object's set got), the success rate among the kept antipodal and near-miss
-    candidates. ``placed``: the placed scene grasps, how many are free of the support and the neighbours, how many
-    are positives (object-level success and free), and the re-simulation check: how many were rolled out again in
-    their scene and how often the label changed (both ways). Both files are read one row group at a time into
-    running counts (:mod:`graspgen.io.card_tally`).
+    ``grippers``: the sets' grippers. ``objects``: per object the grasps kept, positives and negatives, the
+    targets and the candidates tried (from the file's metadata: how far each object's set got), the success rate
+    among the kept antipodal and near-miss candidates. ``placed``: the placed scene grasps, how many are free of the
+    support and the neighbours, how many are positives (object-level success and free), and the re-simulation
+    check: how many were rolled out again in their scene and how often the label changed (both ways). Both files
+    are read one row group at a time into running counts (:mod:`graspgen.io.card_tally`).
     """
     out: dict[str, Any] = {}
     if "object_grasps.parquet" in files:
         out["objects"] = _object_set_objects(root / "object_grasps.parquet")
+        grippers: set[str] = set()
+        if "gripper" in pq.read_schema(root / "object_grasps.parquet").names:
+            for group in row_groups(root / "object_grasps.parquet", ["gripper"]):
+                grippers.update(str(g) for g in group.column("gripper").unique().to_pylist())
+        out["grippers"] = sorted(grippers)
     if "placed_grasps.parquet" in files:
         out["placed"] = _placed_stats(root / "placed_grasps.parquet")
     return out

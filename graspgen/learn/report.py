@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import rankdata
 
-__all__ = ["TOP_K", "average_precision", "roc_auc", "score_report"]
+__all__ = ["TOP_K", "average_precision", "roc_auc", "score_report", "top_k_success"]
 
 TOP_K = 10
 """k of the top-k success rate."""
@@ -38,6 +38,40 @@ def average_precision(label: np.ndarray, score: np.ndarray) -> float | None:
     return float(np.sum(np.diff(np.r_[0.0, recall]) * precision))
 
 
+def top_k_success(label: np.ndarray, score: np.ndarray, k: int = TOP_K) -> float | None:
+    """Success rate of the ``k`` best-scored grasps, ties among equal scores broken fairly: the expected rate over
+    every order of the tied grasps equally likely.
+
+    Groups of equal score are taken best first; the group that straddles the k-th place gives its remaining
+    ``r`` places ``r * positives / size`` positives (the mean of a random draw of ``r`` of its grasps). So a
+    constant score gives exactly the set's success rate, whatever order the grasps came in (breaking ties by
+    trial order would reward whatever order the sampler tried them in).
+
+    Parameters
+    ----------
+    label : (m,) bool
+    score : (m,) float
+    k : int
+        Places; ``min(k, m)`` are taken.
+
+    Returns
+    -------
+    float or None
+        In [0, 1]; None when ``m`` is 0.
+    """
+    y = np.asarray(label, dtype=bool).reshape(-1)
+    s = np.asarray(score, dtype=np.float64).reshape(-1)
+    take = min(int(k), len(y))
+    if take <= 0:
+        return None
+    levels, inverse = np.unique(-s, return_inverse=True)  # best score first
+    size = np.bincount(inverse, minlength=len(levels))
+    pos = np.bincount(inverse, weights=y.astype(np.float64), minlength=len(levels))
+    before = np.r_[0, np.cumsum(size)[:-1]]
+    places = np.clip(take - before, 0, size)  # how many of each group the top-k holds
+    return float(np.sum(places * pos / size) / take)
+
+
 def score_report(sets, scores) -> dict:
     """The held-out figures of ``scores`` (one (m,) array per set) against the sets' labels (contract layout)."""
     labels = [np.asarray(s.label, dtype=bool) for s in sets]
@@ -48,8 +82,7 @@ def score_report(sets, scores) -> dict:
     for s, yi, pi in zip(sets, labels, scores):
         per.append({"name": s.name, "n": int(len(yi)), "positives": int(yi.sum()), "auc": roc_auc(yi, pi)})
         if len(yi):
-            best = np.lexsort((np.arange(len(pi)), -pi))[:TOP_K]  # ties by grasp index
-            top.append(float(yi[best].mean()))
+            top.append(top_k_success(yi, pi))  # ties at their expected value over a random order
             rand.append(float(yi.mean()))
     aucs = [o["auc"] for o in per if o["auc"] is not None]
     return {"auc": roc_auc(y, p), "ap": average_precision(y, p), "base_rate": float(y.mean()) if len(y) else None,

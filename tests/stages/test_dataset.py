@@ -8,6 +8,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 
 import numpy as np
 import pyarrow as pa
@@ -16,6 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from graspgen.io.card_render import render_card
+from graspgen.io.contact_graspnet import scene_file
 from graspgen.io.dataset_table import COLUMN_DOCS, REQUIRED_SCHEMA
 from graspgen_cli.app import app
 from pipeline.config import load_config, to_dict
@@ -26,6 +28,7 @@ from pipeline.scheduler import run_pipeline
 from pipeline.status import status
 from pipeline.store import stage_dir
 from stages.project import PROJECT
+from tests.paths import REPO
 
 
 def smoke(out, cache, *sets):
@@ -67,7 +70,7 @@ def test_published_layout(run):
         assert (d / name).is_file(), name
     # Only the dataset: the engine's shards and manifest of this stage live in OUT/shards/dataset.
     published = {"grasps.parquet", "object_grasps.parquet", "placed_grasps.parquet", "card.md", "card.json",
-                 "config.yaml", "scenes", "objects", "acronym", "graspgen", "plots", "probe"}
+                 "config.yaml", "scenes", "objects", "acronym", "graspgen", "contact_graspnet", "plots", "probe"}
     assert {p.name for p in d.iterdir()} == published
     plots = {p.name for p in (d / "plots").glob("*.png")}
     assert plots == {"outcomes.png", "robustness.png", "epsilon.png", "correlation.png", "examples.png"}
@@ -162,7 +165,7 @@ def test_same_bytes_for_one_and_two_workers_and_dask(run, tmp_path):
         assert all(r.failed == 0 for r in reports), name
         assert shard_hashes(tmp_path / name) == reference, name
         assert sha256_file(tmp_path / name / "dataset" / "grasps.parquet") == published, name
-        for folder in ("acronym", "graspgen"):  # the exports, file by file
+        for folder in ("acronym", "graspgen", "contact_graspnet"):  # the exports, file by file
             mine = {p.relative_to(root / "out").as_posix(): sha256_file(p)
                     for p in sorted((root / "out" / "dataset" / folder).rglob("*")) if p.is_file()}
             theirs = {p.relative_to(tmp_path / name).as_posix(): sha256_file(p)
@@ -329,6 +332,63 @@ def status_text(out):
     return " ".join(result.output.replace("│", " ").split())
 
 
+def test_contact_graspnet_export_is_the_placed_positives_of_every_scene(run):
+    root, _ = run
+    d = root / "out" / "dataset"
+    cgn = d / "contact_graspnet"
+    split = json.loads((cgn / "splits" / "scenes.json").read_text())
+    files = sorted(p.name for p in (cgn / "scene_contacts").glob("*.npz"))
+    assert files == split["files"] and files  # one per scene with a positive, held-out scenes last in name order
+    assert files == sorted([scene_file(s, "train") for s in split["train"]] + [scene_file(s, "test")
+                                                                                for s in split["test"]])
+    assert len(split["test"]) == split["num_test_scenes"]
+    assert sorted(split["train"] + split["test"] + list(split["left_out"])) == sorted(keys(root / "out", "scenes"))
+    placed = pq.read_table(d / "placed_grasps.parquet", columns=["scene_id", "grasp_id", "success"]).to_pandas()
+    card = json.loads((d / "card.json").read_text())
+    for name in files:
+        assert f"contact_graspnet/scene_contacts/{name}" in card["files"]
+        z = np.load(cgn / "scene_contacts" / name, allow_pickle=False)
+        rows = placed[placed.scene_id == str(z["scene_id"])]
+        assert sorted([*z["grasp_ids"], *z["other_grasp_ids"]]) == sorted(rows.grasp_id)
+        assert set(z["grasp_ids"]) <= set(rows.grasp_id[rows.success])
+        for rel in z["obj_paths"]:
+            assert (cgn / str(rel)).is_file() and f"contact_graspnet/{rel}" in card["files"]
+
+
+CONTACT_GRASPNET_SOURCES = [os.environ.get("CONTACT_GRASPNET_SRC", ""), "/work/.mirror/NVlabs+contact_graspnet/repo"]
+CONTACT_GRASPNET = next((s for s in CONTACT_GRASPNET_SOURCES if s and os.path.exists(s)), None)
+
+
+@pytest.mark.skipif(CONTACT_GRASPNET is None, reason="Contact-GraspNet's source is not here: set CONTACT_GRASPNET_SRC "
+                    "to a checkout (or bare git dir) of NVlabs/contact_graspnet")
+def test_contact_graspnet_loads_the_export_with_its_own_code(run, tmp_path):
+    """Contact-GraspNet's unmodified load_scene_contacts reads the smoke dataset's export; counts, poses, object
+    placement and contacts agree with placed_grasps.parquet and the scene records (tools/check_contact_graspnet.py).
+    A copy with its grasps moved by 1 mm fails the same check."""
+    root, _ = run
+    tool = [sys.executable, "tools/check_contact_graspnet.py", "--source", CONTACT_GRASPNET]
+    ok = subprocess.run([*tool, str(root / "out" / "dataset"), "--json", str(tmp_path / "r.json")],
+                        capture_output=True, text=True, cwd=REPO)
+    assert ok.returncode == 0, ok.stdout + ok.stderr
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["files_loaded"] + len(report["left_out"]) == report["scenes"] == 3 and not report["failures"]
+    assert {"pyrender", "cv2"} <= set(report["stubbed"]) or report["stubbed"] == []
+    bad = tmp_path / "bad"
+    shutil.copytree(root / "out" / "dataset", bad)
+    moved = False
+    for path in sorted((bad / "contact_graspnet" / "scene_contacts").glob("*.npz")):
+        z = dict(np.load(path, allow_pickle=False))
+        if len(z["grasp_transforms"]) or len(z["other_grasp_transforms"]):
+            z["grasp_transforms"][:, :3, 3] += 0.001  # moved 1 mm along x, y and z
+            z["other_grasp_ids"] = z["other_grasp_ids"][1:]  # and one row short
+            moved = True
+        path.unlink()
+        np.savez(path, **z)
+    assert moved
+    failed = subprocess.run([*tool, str(bad)], capture_output=True, text=True, cwd=REPO)
+    assert failed.returncode == 1 and "FAIL" in failed.stdout, failed.stdout + failed.stderr
+
+
 def test_status_names_damaged_published_files_and_run_replaces_them(run, tmp_path):
     root, _ = run
     out = tmp_path / "out"
@@ -434,6 +494,24 @@ def test_a_damaged_shard_is_named_by_status_and_only_it_is_run_again(run, tmp_pa
     assert not reports["dataset"].repaired
     assert set(states(cfg).values()) == {"done"}
     assert invoke("validate", out).exit_code == 0
+
+
+def test_the_card_says_which_gripper_and_which_grasps_each_part_covers(run):
+    root, _ = run
+    card = json.loads((root / "out" / "dataset" / "card.json").read_text())
+    md = render_card(card)
+    assert card["object_sets"]["grippers"] == ["panda"] and card["counts"]["grippers"] == ["robotiq_2f85_mesh"]
+    headline = md.split("\n")[2]
+    assert "by the gripper robotiq_2f85_mesh" in headline and "of the gripper panda" in headline
+    assert "pfc, the probability of force closure" in headline  # defined where it is first used
+    assert "What covers what: `grasps.parquet` and the sections Outcomes, Per object, Scene grasps, Labels" in md
+    table = md.index("| object | grasps | positives |")
+    assert md.index("reached: whether") < table and md.index("near misses (`balanced`") < table
+    assert "This split is the probe's own" in md and "| `contact_graspnet/` |" in md
+    placed = dict(card["object_sets"]["placed"], rescene_checked=10, rescene_changed=3, rescene_change_rate=0.3,
+                  rescene_lost=0.39, rescene_gained=0.1)
+    text = render_card({**card, "object_sets": {**card["object_sets"], "placed": placed}})
+    assert "positives lost 39%" in text and "not as picked up in that scene" in text
 
 
 def test_the_card_lists_the_warnings(run):

@@ -71,7 +71,8 @@ def test_the_dataset_section_takes_the_card_keys_at_its_own_level():
     card's keys beside the section's own, as they were before the card had a settings class of its own."""
     cfg = load_config(Schema, None, ["dataset.plots=false", "dataset.histogram_bins=7", "dataset.acronym=false"])
     assert cfg.dataset.card == CardSettings(plots=False, histogram_bins=7) and cfg.dataset.acronym is False
-    flat = ["row_group_rows", "acronym", "graspgen", "plots", "histogram_bins", "example_scenes", "example_grasps"]
+    flat = ["row_group_rows", "acronym", "graspgen", "contact_graspnet", "plots", "histogram_bins", "example_scenes",
+            "example_grasps"]
     assert list(to_dict(cfg.dataset)) == flat
     assert [line.split(":")[0] for line in to_yaml(cfg.dataset).splitlines() if not line.startswith("#")] == flat
     assert json.loads(canonical_json(cfg.dataset)) == to_dict(cfg.dataset)
@@ -96,3 +97,17 @@ def test_stray_files_are_the_unlisted_files_of_the_dataset_folders(tmp_path):
     assert stray_files(tmp_path, listed) == ["scenes/b.h5", "acronym/meshes/x.obj", "plots/link.png",
                                              "plots/old.png"]
     assert stray_files(tmp_path / "nothing", listed) == []
+
+
+def test_the_scene_grasps_total_counts_scenes_not_object_scene_pairs():
+    from graspgen.io.card_grasps import scene_grasp_counts, scene_grasps_lines
+
+    def entry(name):
+        return {"object_name": name, "tried": 5, "unreachable": {"ground": 0, "target": 0},
+                "prefilter": {"collision_with_ground": 0, "collision_with_target": 0, "collision_with_clutter": 0},
+                "kept": {"free": 2, "collisions": 0}, "stopped": "target"}
+
+    section = scene_grasp_counts([{"objects": [entry("a"), entry("b")]}, {"objects": [entry("a")]}, {}])
+    assert section["objects"]["a"]["scenes"] == 2 and section["objects"]["b"]["scenes"] == 1
+    assert section["total"]["scenes"] == 2 and section["total"]["object_scenes"] == 3
+    assert any(line.startswith("| all | 2 | 15 |") for line in scene_grasps_lines(section))

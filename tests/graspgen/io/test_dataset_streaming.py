@@ -111,6 +111,7 @@ def reference_stats(root, files):
     ok = np.asarray(t.column("success").to_pylist(), dtype=bool)
     firm = np.asarray(t.column("firm").to_pylist(), dtype=bool)
     sets["objects"] = {}
+    sets["grippers"] = sorted(set(t.column("gripper").to_pylist())) if "gripper" in t.column_names else []
     for name in sorted(set(names) | set(meta)):
         sel = names == name
         m = meta.get(name, {})

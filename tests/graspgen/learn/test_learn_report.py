@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from graspgen.learn.report import average_precision, roc_auc, score_report
+from graspgen.learn.report import average_precision, roc_auc, score_report, top_k_success
 
 
 def _slow_auc(y, s):
@@ -60,6 +60,24 @@ def test_score_report_layout_and_top_k():
     assert r["per_object"][0] == {"name": "a", "n": 20, "positives": 5, "auc": 1.0}
     assert r["per_object"][1]["auc"] is None and r["mean_object_auc"] == 1.0
     assert r["top_k"] == {"k": 10, "success": (5 / 10 + 1.0) / 2, "random": (0.25 + 1.0) / 2, "objects": 2}
+
+
+def test_top_k_breaks_ties_at_their_expected_value():
+    y = np.array([0] * 12 + [1] * 8, bool)  # positives last: a trial-order tie-break would score 0 for a constant
+    assert top_k_success(y, np.zeros(20)) == pytest.approx(8 / 20)
+    assert top_k_success(y[::-1], np.zeros(20)) == pytest.approx(8 / 20)  # order does not matter
+    # three best (2 positives), then a tie of 10 with 4 positives for the 7 places left: (2 + 7 * 4 / 10) / 10
+    s = np.r_[np.full(10, 0.5), [0.9, 0.9, 0.9], np.zeros(7)]
+    lab = np.r_[[1, 1, 1, 1] + [0] * 6, [1, 1, 0], [1] * 7].astype(bool)
+    assert top_k_success(lab, s) == pytest.approx((2 + 7 * 4 / 10) / 10)
+    assert top_k_success(lab[:3], s[:3], k=10) == pytest.approx(1.0) and top_k_success([], [], k=10) is None
+    # brute force: the mean over every order of the tied grasps
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        sc = rng.integers(0, 3, 9).astype(float)
+        lb = rng.random(9) < 0.5
+        orders = [np.lexsort((rng.permutation(9), -sc))[:4] for _ in range(4000)]
+        assert top_k_success(lb, sc, k=4) == pytest.approx(np.mean([lb[o].mean() for o in orders]), abs=0.02)
 
 
 def test_numpy_modules_do_not_import_torch():
