@@ -256,6 +256,12 @@ def _drive(motion: HandMotion, smp: _Samples, stroke: float, given: dict) -> tup
     closing = [joints[n] for n in motion.closing]
     notes = []
     force = given.get("force_limit")
+    if force is None and motion.actuator and motion.tree.actuators[motion.actuator][1] > 0:
+        if any(j.type != "prismatic" for j in closing):
+            raise SettingsError(f"force_limit: the actuator {motion.actuator!r} turns its joints (a torque, not a "
+                                "grip force); give force_limit (N, e.g. the data sheet's)")
+        force = motion.tree.actuators[motion.actuator][1]
+        notes.append(f"force {force:g} N: actuator {motion.actuator}'s force range")
     if force is None:
         efforts = [j.effort for j in closing if j.type == "prismatic" and j.effort > 0]
         if len(efforts) != len(closing):

@@ -28,6 +28,8 @@ class HandMotion:
     """Closing joint name -> (open value, closed value) (rad or m)."""
     mimic: dict
     """Mimic joint name -> (source, multiplier, offset), sources resolved to closing joints."""
+    actuator: str = ""
+    """The MJCF actuator that closes the hand ('' when the closing joints were named or derived otherwise)."""
 
     def q(self, s: float) -> dict[str, float]:
         """Joint values at closing fraction ``s`` (0 open, 1 closed)."""
@@ -49,11 +51,30 @@ def _read_tree(ref: ModelRef) -> HandTree:
     return read_mjcf(ref.path)
 
 
-def _closing_joints(tree: HandTree, root: str, ref: ModelRef, pad_links: tuple[str, str]) -> tuple[list, dict]:
-    """(closing joint names, mimic map resolved to them) of the subtree of ``root``."""
+def _actuator(tree: HandTree, ref: ModelRef, moving: dict) -> str:
+    """The actuator that closes the hand: ``ref.actuator``, else the only one acting on the hand's joints."""
+    mine = {n: v for n, v in tree.actuators.items() if any(j in moving for j in v[0])}
+    if ref.actuator:
+        if ref.actuator not in tree.actuators:
+            raise SettingsError(f"actuator: no actuator {ref.actuator!r} in the model; its actuators: "
+                                f"{', '.join(tree.actuators) or 'none'}")
+        return ref.actuator
+    if len(mine) > 1:
+        raise SettingsError(f"actuator: the hand has {len(mine)} actuators ({', '.join(mine)}); name the one that "
+                            "closes it")
+    return next(iter(mine), "")
+
+
+def _closing_joints(tree: HandTree, root: str, ref: ModelRef, pad_links: tuple[str, str]) -> tuple[list, dict, str]:
+    """(closing joint names, mimic map resolved to them, closing actuator or '') of the subtree of ``root``."""
     links = set(tree.subtree(root))
     moving = {j.name: j for j in tree.joints if j.child in links and j.type != "fixed"}
-    if ref.joints:
+    actuator = "" if ref.joints else _actuator(tree, ref, moving)
+    if actuator:
+        closing = [j for j in tree.actuators[actuator][0] if j in moving]
+        if not closing:
+            raise SettingsError(f"actuator: {actuator!r} moves none of the hand's joints")
+    elif ref.joints:
         bad = [n for n in ref.joints if n not in moving]
         if bad:
             raise SettingsError(f"joints: {bad[0]!r} is not a moving joint of the hand; its moving joints: "
@@ -79,7 +100,7 @@ def _closing_joints(tree: HandTree, root: str, ref: ModelRef, pad_links: tuple[s
         joint = moving[name]
         if not (np.isfinite(joint.lower) and np.isfinite(joint.upper) and joint.upper > joint.lower):
             raise SettingsError(f"joints: {name!r} has no finite range in the model; the stroke comes from it")
-    return closing, mimic
+    return closing, mimic, actuator
 
 
 def _named(tree: HandTree, root: str, name: str) -> tuple[str, int | None]:
@@ -180,7 +201,7 @@ def world_vertices(motion_poses: dict, link: str, geom: Geom) -> np.ndarray:
     return trimesh.transform_points(geom.mesh.vertices, motion_poses[link] @ geom.pose)
 
 
-def _orient(tree: HandTree, root: str, closing: list, mimic: dict, pads: tuple) -> HandMotion:
+def _orient(tree: HandTree, root: str, closing: list, mimic: dict, pads: tuple, actuator: str) -> HandMotion:
     """The :class:`HandMotion` with each closing joint's open end chosen (pads farther apart there)."""
     def gap(q):
         poses = tree.poses(root, q)
@@ -200,7 +221,7 @@ def _orient(tree: HandTree, root: str, closing: list, mimic: dict, pads: tuple) 
             raise SettingsError(f"joints: {name!r} does not move the pads apart or together; name the joints that "
                                 "close the hand")
         ends[name] = (j.upper, j.lower) if high > low else (j.lower, j.upper)
-    return HandMotion(tree=tree, root=root, closing=ends, mimic=mimic)
+    return HandMotion(tree=tree, root=root, closing=ends, mimic=mimic, actuator=actuator)
 
 
 def hand_motion(ref: ModelRef) -> tuple[HandMotion, tuple[tuple[str, int], tuple[str, int]]]:
@@ -210,5 +231,5 @@ def hand_motion(ref: ModelRef) -> tuple[HandMotion, tuple[tuple[str, int], tuple
     tree.subtree(root)  # the body exists
     tree = _with_finger_box(tree, root, ref)
     left, right = _pad_geoms(tree, root, ref.pads)
-    closing, mimic = _closing_joints(tree, root, ref, (left[0], right[0]))
-    return _orient(tree, root, closing, mimic, (left, right)), (left, right)
+    closing, mimic, actuator = _closing_joints(tree, root, ref, (left[0], right[0]))
+    return _orient(tree, root, closing, mimic, (left, right), actuator), (left, right)

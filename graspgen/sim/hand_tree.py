@@ -84,6 +84,10 @@ class Joint:
     """Effort limit (N m or N), 0 when not given."""
     mimic: tuple[str, float, float] | None = None
     """(source joint, multiplier, offset): q = multiplier * q_source + offset; None when independent."""
+    anchor: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Point (m, child frame) the axis passes through (MJCF joints; URDF: the child frame's origin)."""
+    ref: float = 0.0
+    """Joint value (rad or m) at which the child sits at ``origin`` (MJCF ``ref``; URDF 0)."""
 
 
 @dataclass(frozen=True)
@@ -98,6 +102,9 @@ class HandTree:
     """Joints, in file order."""
     files: tuple[str, ...] = ()
     """Every file read: the model file, then its mesh files."""
+    actuators: dict = field(default_factory=dict, repr=False)
+    """MJCF actuator name -> (its joints, the force limit on each (N for a slide, N m for a hinge; 0: none)); empty
+    for URDF, which has no actuators."""
 
     def root(self) -> str:
         """The link that is no joint's child (:class:`SettingsError` if there is not exactly one)."""
@@ -153,12 +160,16 @@ def rpy_matrix(rpy) -> np.ndarray:
 
 
 def joint_motion(joint: Joint, q: float) -> np.ndarray:
-    """(4, 4) motion of ``joint`` at value ``q``: a turn about its axis (revolute) or a slide along it."""
+    """(4, 4) motion of ``joint`` at value ``q``: a turn by ``q - ref`` about its axis through its anchor
+    (revolute) or a slide by ``q - ref`` along it (prismatic)."""
     T = np.eye(4)
+    q = q - joint.ref
     if joint.type in ("revolute", "continuous"):
         a = joint.axis
         K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
         T[:3, :3] = np.eye(3) + np.sin(q) * K + (1.0 - np.cos(q)) * K @ K
+        p = np.asarray(joint.anchor, dtype=float)
+        T[:3, 3] = p - T[:3, :3] @ p
     elif joint.type == "prismatic":
         T[:3, 3] = joint.axis * q
     return T

@@ -160,4 +160,49 @@ def test_schunk_egk40_gets_its_box_fingers():
     assert spec.max_width == pytest.approx(0.1, abs=1e-9)  # mounts 55 mm apart, faces 22.5 mm outboard of them
     assert spec.min_width == pytest.approx(0.0, abs=1e-9)  # they meet at the end of the 50 mm of travel
     assert spec.force_limit == 10.0 and spec.closing_speed == pytest.approx(0.2)  # URDF effort, 2 x 0.1 m/s
-    assert spec.pad_size == pytest.approx((0.002, 0.02, 0.04))
+    assert spec.pad_size == pytest.approx((0.002, 0.02, 0.07))
+
+
+#: The same hand as _URDF in MJCF: joint equality for the mimic, a tendon position actuator with a force range,
+#: a visual-only geom (ignored), and the base's approach along its -y as before.
+_MJCF = """<mujoco model="test_hand">
+  <worldbody>
+    <body name="base">
+      <geom type="box" size="0.05 0.02 0.015" pos="0 -0.02 0" mass="0.5"/>
+      <geom type="sphere" size="0.5" contype="0" conaffinity="0" mass="0"/>
+      <body name="left" pos="-0.04 0 0">
+        <joint name="j_left" type="slide" axis="1 0 0" range="0 0.035"/>
+        <geom name="left_mount" type="box" size="0.005 0.01 0.01" pos="-0.005 -0.01 0" mass="0.01"/>
+        <geom name="left_tip" type="box" size="0.002 0.01 0.009" pos="0.002 -0.04 0" mass="0.01"/>
+      </body>
+      <body name="right" pos="0.04 0 0">
+        <joint name="j_right" type="slide" axis="1 0 0" range="-0.035 0"/>
+        <geom name="right_mount" type="box" size="0.005 0.01 0.01" pos="0.005 -0.01 0" mass="0.01"/>
+        <geom name="right_tip" type="box" size="0.002 0.01 0.009" pos="-0.002 -0.04 0" mass="0.01"/>
+      </body>
+    </body>
+  </worldbody>
+  <tendon><fixed name="split"><joint joint="j_left" coef="0.5"/><joint joint="j_right" coef="-0.5"/></fixed></tendon>
+  <equality><joint joint1="j_right" joint2="j_left" polycoef="0 -1 0 0 0"/></equality>
+  <actuator><position name="close" tendon="split" kp="100" forcelimited="true" forcerange="-60 60"
+    ctrlrange="0 0.035"/></actuator>
+</mujoco>
+"""
+
+
+def test_an_mjcf_hand_gives_the_urdf_hands_figures_and_its_actuators_force(tmp_path):
+    (tmp_path / "hand.xml").write_text(_MJCF)
+    path = tmp_path / "hand.yaml"
+    path.write_text("name: test_hand\nmodel: hand.xml\npads: [left_tip, right_tip]\nbody: base\nclosing_speed: 0.1\n")
+    (tmp_path / "u").mkdir()
+    spec, urdf = read_gripper(path), read_gripper(_hand(tmp_path / "u"))
+    for key in ("max_width", "min_width", "tcp_offset", "pad_size", "body_mass", "finger_mass"):
+        assert getattr(spec, key) == pytest.approx(getattr(urdf, key), abs=1e-9), key
+    assert spec.force_limit == 30.0  # 60 N on the tendon, half of it on each jaw
+    assert "actuator close" in spec.source and len(spec.palm_geoms) == 1  # the visual sphere is left out
+    path.write_text("name: test_hand\nmodel: hand.xml\npads: [left_tip, right_tip]\nactuator: open\n")
+    with pytest.raises(SettingsError, match=r"actuator: no actuator 'open' in the model; its actuators: close"):
+        read_gripper(path)
+    path.write_text("name: test_hand\nmodel: hand.xml\npads: [left_tip, right_tip]\n")
+    with pytest.raises(SettingsError, match=r"closing_speed: the model gives the closing joints no velocity limit"):
+        read_gripper(path)
