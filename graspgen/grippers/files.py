@@ -205,7 +205,13 @@ def read_gripper(path: str | os.PathLike) -> GripperSpec:
         (its smallest x) must lie at ``max_width / 2``. ``pad_size`` (the contact area) and ``finger_size`` default
         to the pieces' bounding boxes.
 
-    Returns the spec (cached while the file is unchanged). Raises :class:`SettingsError` in one line,
+    * Or a robot model: ``model`` (a URDF / MJCF file) with ``pads`` and, where needed, ``joints``, ``actuator``,
+      ``body``, ``finger_box``; the geometry is then derived from the model (:mod:`graspgen.grippers.model_ref`,
+      :mod:`graspgen.sim.gripper_import`), and only ``name`` and the scalars that supply or override derived values
+      may stand beside it.
+
+    Returns the spec (cached while the gripper file is unchanged: a changed model file is read again after the
+    gripper file is touched or in a new process). Raises :class:`SettingsError` in one line,
     ``gripper: <path>: <what>``.
     """
     label = os.fspath(path)
