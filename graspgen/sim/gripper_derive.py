@@ -68,8 +68,6 @@ def mirrored_bounds_gap(right: list[Shape], left: list[Shape]) -> float:
     return float(max(np.abs(mlo - llo).max(), np.abs(mhi - lhi).max()))
 
 
-
-
 @dataclass(frozen=True)
 class _Samples:
     """The hand sampled over the stroke: base-frame link poses and pad vertices at each closing fraction."""
