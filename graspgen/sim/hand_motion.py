@@ -16,6 +16,7 @@ from graspgen.sim.hand_tree import Geom, HandTree, read_urdf
 
 __all__ = ["HandMotion", "hand_motion", "world_vertices"]
 
+
 @dataclass(frozen=True)
 class HandMotion:
     """The hand's closing motion as the model gives it: link poses from open (s = 0) to closed (s = 1)."""
@@ -198,6 +199,7 @@ def _with_finger_box(tree: HandTree, root: str, ref: ModelRef) -> HandTree:
 
 
 def world_vertices(motion_poses: dict, link: str, geom: Geom) -> np.ndarray:
+    """(n, 3) vertices (m) of ``geom`` of ``link`` in the base frame, with link poses ``motion_poses``."""
     return trimesh.transform_points(geom.mesh.vertices, motion_poses[link] @ geom.pose)
 
 
