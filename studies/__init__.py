@@ -6,6 +6,8 @@ and writes ``studies/results_<name>.json`` (gitignored). The throughput benchmar
 Against ACRONYM's FleX labels on the calibration grasps (:mod:`studies.calibration` finds and reads them):
 
 - :mod:`studies.fidelity`: agreement, Cohen's kappa and score AUCs per protocol; ``--sweep``, ``--speed``;
+- :mod:`studies.gripper_agreement`: two grippers' labels from two :mod:`studies.fidelity` runs on the same grasps (a
+  gripper given as a robot model against the bundled hand it stands for);
 - :mod:`studies.fidelity_disagreement`: which grasp properties separate FleX-held from FleX-lost among our successes;
 - :mod:`studies.second_reference` (Bullet) and :mod:`studies.compliant_reference` (Drake, compliant contact):
   other simulators on the same grasps (``pip install -e '.[reference]'``);

@@ -13,6 +13,15 @@ os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [_REPO, os.environ.get("
 from graspgen.sim.gl import select_backend  # noqa: E402
 
 select_backend()  # before any test module imports mujoco (MUJOCO_GL is read once); workers inherit the choice
+# Grippers given as robot models cache their CoACD pieces in $GRASPGEN_GRIPPER_CACHE (graspgen.sim.gripper_derive):
+# the tests' go to a temporary folder, not the user's ~/.cache, here and in the workers.
+if "GRASPGEN_GRIPPER_CACHE" not in os.environ:
+    import atexit
+    import shutil
+    import tempfile
+
+    os.environ["GRASPGEN_GRIPPER_CACHE"] = tempfile.mkdtemp(prefix="graspgen-gripper-cache-")
+    atexit.register(shutil.rmtree, os.environ["GRASPGEN_GRIPPER_CACHE"], True)
 
 
 @pytest.fixture

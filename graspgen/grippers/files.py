@@ -17,6 +17,7 @@ import yaml
 
 from graspgen.errors import SettingsError
 from graspgen.grippers.bundled import bundled_names
+from graspgen.grippers.model_ref import MODEL_KEYS, model_ref_from_dict, spec_from_model
 from graspgen.grippers.shapes import Box, Linkage, Mesh, Shape, bounds_of, short_repr
 from graspgen.grippers.spec import GripperSpec
 from graspgen.validation import check, check_choice, check_number, check_vector
@@ -125,7 +126,9 @@ def gripper_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike = 
     relative to ``base_dir``. :class:`SettingsError` names the offending key."""
     if not isinstance(data, Mapping):
         raise SettingsError(f"must be a mapping of gripper settings (name, max_width, ...), got {short_repr(data)}")
-    names = [f.name for f in fields(GripperSpec) if f.name != "file"]
+    names = [f.name for f in fields(GripperSpec) if f.name not in ("file", "model_files")]
+    if "model" in data:
+        return _from_model(data, names, Path(base_dir), file)
     unknown = sorted(str(k) for k in set(data) - set(names) - set(_FILE_ONLY_KEYS))
     if unknown:
         valid = ", ".join(sorted(names + list(_FILE_ONLY_KEYS)))
@@ -162,6 +165,24 @@ def gripper_from_dict(data: Mapping[str, Any], *, base_dir: str | os.PathLike = 
     return GripperSpec(**values, file=file)
 
 
+#: GripperSpec fields a gripper file with ``model:`` may give beside it (the geometry comes from the model).
+_MODEL_OVERRIDES = ("name", "min_width", "max_width", "force_limit", "closing_speed", "finger_mass", "body_mass",
+                    "pad_friction", "pad_condim", "source")
+
+
+def _from_model(data: Mapping[str, Any], names: list[str], base_dir: Path, file: str) -> GripperSpec:
+    """The spec of a gripper file that names a robot model (``model:``; :mod:`graspgen.grippers.model_ref`)."""
+    valid = sorted(MODEL_KEYS + _MODEL_OVERRIDES)
+    unknown = sorted(str(k) for k in set(data) - set(valid))
+    if unknown:
+        geometry = " (the geometry comes from the model)" if unknown[0] in names else ""
+        raise SettingsError(f"{unknown[0]}: not valid beside model{geometry}; valid keys: {', '.join(valid)}")
+    if "name" not in data:
+        raise SettingsError("name: missing (a gripper file needs a name)")
+    overrides = {k: data[k] for k in _MODEL_OVERRIDES if k in data}
+    return spec_from_model(model_ref_from_dict(data, base_dir, overrides), file=file)
+
+
 _FILE_CACHE: dict[tuple, GripperSpec] = {}
 
 
@@ -184,7 +205,13 @@ def read_gripper(path: str | os.PathLike) -> GripperSpec:
         (its smallest x) must lie at ``max_width / 2``. ``pad_size`` (the contact area) and ``finger_size`` default
         to the pieces' bounding boxes.
 
-    Returns the spec (cached while the file is unchanged). Raises :class:`SettingsError` in one line,
+    * Or a robot model: ``model`` (a URDF / MJCF file) with ``pads`` and, where needed, ``joints``, ``actuator``,
+      ``body``, ``finger_box``; the geometry is then derived from the model (:mod:`graspgen.grippers.model_ref`,
+      :mod:`graspgen.sim.gripper_import`), and only ``name`` and the scalars that supply or override derived values
+      may stand beside it.
+
+    Returns the spec (cached while the gripper file is unchanged: a changed model file is read again after the
+    gripper file is touched or in a new process). Raises :class:`SettingsError` in one line,
     ``gripper: <path>: <what>``.
     """
     label = os.fspath(path)

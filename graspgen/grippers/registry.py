@@ -54,13 +54,14 @@ def load_gripper(name: str | os.PathLike) -> GripperSpec:
 
 
 def gripper_files(name_or_path: str | os.PathLike) -> tuple[str, ...]:
-    """The files a gripper given by path is read from (its gripper file, then its mesh files), whose bytes a stage
-    puts into its content keys; () for a registered name (the bundled files count as code: see
-    :data:`BUNDLED_DIGESTS`)."""
+    """The files a gripper given by path is read from (its gripper file, its robot model's files, then its mesh
+    files), whose bytes a stage puts into its content keys; () for a registered name (the bundled files count as
+    code: see :data:`BUNDLED_DIGESTS`)."""
     if isinstance(name_or_path, str) and name_or_path in GRIPPERS:
         return ()
     spec = load_gripper(name_or_path)
     files = [spec.file] if spec.file else []
+    files += [f for f in spec.model_files if f not in files]
     for piece in spec.pieces:
         if isinstance(piece, Mesh) and piece.file and piece.file not in files:
             files.append(piece.file)

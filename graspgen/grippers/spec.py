@@ -92,6 +92,9 @@ class GripperSpec:
     they close) and its links collide too. None: the jaws slide along x only."""
     file: str = field(default="", compare=False)
     """The gripper file this spec was read from ('' for one made in Python)."""
+    model_files: tuple[str, ...] = field(default=(), compare=False)
+    """The files a spec derived from a robot model was read from besides ``file`` (the URDF / MJCF and its meshes,
+    :mod:`graspgen.grippers.model_ref`); their bytes go into the content keys (``gripper_files``)."""
 
     def __post_init__(self) -> None:
         check_instance("name", self.name, str, what="string")
@@ -138,6 +141,7 @@ class GripperSpec:
             self.linkage.couplings(self.min_width, self.max_width)  # reachable and fitted, or SettingsError
         check_instance("source", self.source, str, what="string")
         check_instance("file", self.file, str, what="string")
+        object.__setattr__(self, "model_files", tuple(str(f) for f in self.model_files))
 
     @property
     def stroke(self) -> float:
@@ -176,7 +180,7 @@ class GripperSpec:
         :func:`read_gripper` reads it back (meshes as their vertices). ``file`` is left out."""
         out = {}
         for f in fields(self):
-            if f.name == "file":
+            if f.name in ("file", "model_files"):
                 continue
             value = getattr(self, f.name)
             if f.name in ("palm_boxes", "palm_geoms", "finger_geoms"):

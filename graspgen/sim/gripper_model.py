@@ -99,6 +99,7 @@ import numpy as np
 from graspgen.errors import SettingsError
 from graspgen.grippers import Box, GripperSpec, Mesh, Shape
 from graspgen.grippers.shapes import bounds_of
+from graspgen.sim import gripper_import  # noqa: F401 - derives grippers given as robot models (gripper files' model:)
 from graspgen.sim.physics import physics_options
 from graspgen.validation import check_choice, check_instance
 

@@ -14,9 +14,10 @@ from graspgen.grippers import GRIPPERS, load_gripper
 from graspgen.quality import mechanics_theory
 from graspgen.sim.gripper_model import attach_gripper, pad_torsion_arm
 from graspgen.workflows import mechanics
+from tests.model_grippers import model_gripper_params
 
 
-@pytest.mark.parametrize("name", sorted(GRIPPERS))
+@pytest.mark.parametrize("name", [*sorted(GRIPPERS), *model_gripper_params()])
 def test_torsion_arm_is_the_mean_distance_of_the_pad_face(name):
     spec = load_gripper(name)
     assert pad_torsion_arm(spec) == pytest.approx(mechanics_theory.torsion_arm(spec), rel=1e-5)
@@ -59,8 +60,13 @@ def test_pad_torsion_scales_with_each_objects_friction():
 _BOX_PAD_TORSION = pytest.mark.xfail(strict=True, reason="box pads' corner contacts over-resist torsion")
 
 
+#: The grippers given as robot models (assets/model_grippers) all have box pads (their URDFs' fingertip boxes, the
+#: EGK40's box fingers), so they carry the same mark.
+_MODEL_BOX_PADS = {name: [_BOX_PAD_TORSION] for name in ("robotiq_2f85_urdf", "panda_urdf", "schunk_egk40")}
+
+
 @pytest.mark.parametrize("name", [n if n == "panda" else pytest.param(n, marks=_BOX_PAD_TORSION)
-                                  for n in sorted(GRIPPERS)])
+                                  for n in sorted(GRIPPERS)] + model_gripper_params(marks=_MODEL_BOX_PADS))
 def test_pivot_threshold_within_10_percent(name, tmp_path):
     r = mechanics.run_case("pivot", name, "graspgen", cache_dir=tmp_path, rel_tol=0.03)
     assert math.isfinite(r.firm), r
@@ -71,3 +77,15 @@ def test_linear_slip_threshold_within_10_percent(tmp_path):
     r = mechanics.run_case("slip", "panda", "graspgen", cache_dir=tmp_path, rel_tol=0.03)
     assert abs(r.label - r.analytic) <= 0.1 * r.analytic, r
     assert r.analytic == pytest.approx(2 * 0.5 * 70.0 / 9.81, rel=0.01)  # 7.1 kg, m g <= 2 mu F
+
+
+#: The 2F-85's linkage lets the box slip early under the graspgen tug (-39 % measured, studies/mechanics.py; the
+#: bundled robotiq_2f85_mesh holds nothing of this case at all): kept visible, strict.
+_LINKAGE_SLIP = pytest.mark.xfail(strict=True, reason="the 2F-85 linkage slips early under the graspgen tug")
+
+
+@pytest.mark.parametrize("name", model_gripper_params(marks={"robotiq_2f85_urdf": [_LINKAGE_SLIP]}))
+def test_linear_slip_threshold_of_model_grippers_within_10_percent(name, tmp_path):
+    r = mechanics.run_case("slip", name, "graspgen", cache_dir=tmp_path, rel_tol=0.03)
+    assert abs(r.label - r.analytic) <= 0.1 * r.analytic, r
+    assert r.analytic == pytest.approx(2 * 0.5 * load_gripper(name).force_limit / 9.81, rel=0.01)
