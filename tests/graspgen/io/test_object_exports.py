@@ -121,7 +121,7 @@ def test_object_acronym_files_round_trip_poses_labels_and_motions(dataset):
         rows = rows_of(dataset, name)
         T_tcp = column_array(rows, "pose_object", (4, 4))
         grasps = read_acronym(dataset / "acronym" / f"{name}.h5")
-        assert len(grasps) == len(rows) and grasps.gripper_type == "franka_panda"
+        assert len(grasps) == len(rows) and grasps.gripper_type == "panda"
         np.testing.assert_allclose(grasps.tcp_poses(), T_tcp, atol=1e-12)
         # the file holds the Panda hand frame: same axes, origin 0.1034 m back along the approach axis
         np.testing.assert_array_equal(grasps.transforms[:, :3, :3], T_tcp[:, :3, :3])
