@@ -12,17 +12,21 @@ An ACRONYM grasp file is one HDF5 file per object (ARCHITECTURE.md, Conventions)
     object/mass, object/density, object/friction, object/volume   floats (kg, kg/m^3, -, m^3)
     object/com                                 (3,)     float    centre of mass, scaled mesh frame, m
     object/inertia                             (3, 3)   float    kg m^2
-    gripper/type                               string            e.g. ``franka_panda``
+    gripper/type                               string            ``panda`` (ACRONYM's own files; see below)
     gripper/configuration                      (k,)     float    the gripper's joint configuration (opening)
 
 Frames. ACRONYM poses are the gripper's **hand base** (for the Panda: the hand frame at the flange), with z the
 approach direction and x the closing direction, exactly our TCP axes (:mod:`graspgen.grippers`); only the origin
 differs: our TCP (midway between the pads) sits ``tcp_offset`` along the base's +z (0.1034 m for the Panda hand).
 :func:`tcp_from_hand_base` and :func:`hand_base_from_tcp` convert; the offset comes from the gripper the file names
-in ``gripper/type`` (``franka_panda`` is our ``panda``), so ``read_acronym(p).tcp_poses()`` gives TCP poses whatever
-gripper wrote the file. Strings are stored the way ACRONYM's own files store them (variable-length UTF-8 scalars)
-and read back whether they come as ``bytes`` or ``str``. Root attributes of the file (the object export writes
-``protocol``) are read into :attr:`AcronymGrasps.attrs`.
+in ``gripper/type``, so ``read_acronym(p).tcp_poses()`` gives TCP poses whatever gripper wrote the file. ACRONYM's
+own files say ``panda`` (``gripper/type`` of every file of its release and of its example
+``data/examples/grasps/Mug_10f6e09036350e92b3f21f1137c3c347_0.0002682457830986903.h5``, with
+``gripper/configuration`` ``[0.04]``), which is our name too, so the Panda is written as ``panda``; exports made
+before that wrote ``franka_panda`` (GraspGen's name), which :data:`GRIPPER_ALIASES` still reads as ``panda``.
+Strings are stored the way ACRONYM's own files store them (variable-length UTF-8 scalars) and read back whether
+they come as ``bytes`` or ``str``. Root attributes of the file (the object export writes ``protocol``) are read into
+:attr:`AcronymGrasps.attrs`.
 
 Two exports of a published dataset folder (:mod:`graspgen.io.acronym_export`) write one such file per object,
 ``acronym/<object>.h5``, with the mesh as ``acronym/meshes/<object>.obj`` (in metres, so ``object/scale`` is 1;
@@ -73,10 +77,12 @@ SUCCESS_KEY = "flex/object_in_gripper"
 """Key (below ``grasps/qualities``) of ACRONYM's success label."""
 
 GRIPPER_ALIASES: dict[str, str] = {"franka_panda": "panda"}
-"""ACRONYM's ``gripper/type`` names -> our gripper registry names (:data:`graspgen.grippers.GRIPPERS`)."""
+"""``gripper/type`` names that are not ours -> our gripper registry names (:data:`graspgen.grippers.GRIPPERS`):
+``franka_panda``, written by our exports before they wrote ACRONYM's own ``panda``."""
 
-_FILE_NAMES = {v: k for k, v in GRIPPER_ALIASES.items()}
-"""Our gripper names -> the ``gripper/type`` we write (ACRONYM's own name where it has one)."""
+_FILE_NAMES: dict[str, str] = {}
+"""Our gripper names -> the ``gripper/type`` we write where it is not our name (none: ACRONYM's own name for the
+Panda, ``panda``, is ours)."""
 
 FLEX_MOTION: dict[str, str] = {
     "motion_closing_linear": "flex/object_motion_during_closing_linear",
@@ -133,7 +139,8 @@ def hand_base_from_tcp(T_tcp: Any, tcp_offset: float) -> np.ndarray:
 
 
 def gripper_name(file_type: str) -> str:
-    """Our registry name of an ACRONYM ``gripper/type`` (``franka_panda`` -> ``panda``; our own names pass).
+    """Our registry name of an ACRONYM ``gripper/type`` (``panda``, ACRONYM's and ours, passes; ``franka_panda`` ->
+    ``panda``).
 
     Raises
     ------
@@ -160,7 +167,7 @@ class AcronymGrasps:
     object_scale: float
     """Metres per mesh-file unit."""
     gripper_type: str
-    """``gripper/type`` as stored (e.g. ``franka_panda``); :meth:`tcp_poses` maps it with :func:`gripper_name`."""
+    """``gripper/type`` as stored (e.g. ``panda``); :meth:`tcp_poses` maps it with :func:`gripper_name`."""
     object_mass: float | None = None
     """kg."""
     object_com: np.ndarray | None = None
@@ -247,7 +254,7 @@ def read_acronym(path: str | Path) -> AcronymGrasps:
     """Read an ACRONYM grasp file (see the module docstring for the layout).
 
     Required: ``grasps/transforms`` and ``object/file``; ``object/scale`` defaults to 1 and ``gripper/type`` to
-    ``franka_panda`` (the only gripper ACRONYM itself uses); everything else is optional.
+    ``panda`` (the only gripper ACRONYM itself uses, by the name its files give it); everything else is optional.
 
     Raises
     ------
@@ -289,7 +296,7 @@ def read_acronym(path: str | Path) -> AcronymGrasps:
             qualities=qualities,
             object_file=_string(obj["file"][()]),
             object_scale=1.0 if scale is None else scale,
-            gripper_type=_string(grip["type"][()]) if grip is not None and "type" in grip else "franka_panda",
+            gripper_type=_string(grip["type"][()]) if grip is not None and "type" in grip else "panda",
             object_mass=_float(obj, "mass"),
             object_com=_array(obj, "com", (3,)),
             object_inertia=_array(obj, "inertia", (3, 3)),
@@ -340,8 +347,8 @@ def write_acronym(
     object_scale : float
         Metres per mesh-file unit.
     gripper : str
-        Our gripper name (:data:`graspgen.grippers.GRIPPERS`); written as ACRONYM's name where it has one
-        (``panda`` -> ``franka_panda``).
+        Our gripper name (:data:`graspgen.grippers.GRIPPERS`), written as ``gripper/type`` (the Panda as ``panda``,
+        ACRONYM's own name for it).
     object_mass, object_com, object_inertia, object_density, object_friction
         Optional object properties (kg, (3,) m, (3, 3) kg m^2, kg/m^3, -); omitted from the file when None.
     gripper_configuration : (k,) float, optional

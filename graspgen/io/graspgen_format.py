@@ -5,10 +5,10 @@ The layout is the one GraspGen's training data loader reads (``grasp_gen/dataset
 NVIDIA's GraspDataGen writes for it (its GraspGen workflow page)::
 
     <root>/
-        objects/<object>.obj                          the object dataset root: meshes in metres (scale 1)
-        grasp_data/<gripper>/<object>.grasps.json     one file per object (GraspGen's ``grasp_root_dir``)
+        objects/<object>.obj                          meshes in metres (scale 1): GraspGen's ``object_root_dir``
+        grasp_data/<gripper>/<object>.grasps.json     one file per object; the folder is its ``grasp_root_dir``
         grasp_data/<gripper>/map_uuid_to_path.json    {"<object>.obj": "<object>.grasps.json", ...}
-        splits/<gripper>/train.txt                    one object key per line (GraspGen's ``splits`` root)
+        splits/<gripper>/train.txt                    one object key per line; the folder is its ``root_dir``
         splits/<gripper>/valid.txt
 
 ``<gripper>`` is the name GraspGen gives the gripper (:data:`GRASPGEN_GRIPPER_NAMES`: ``franka_panda`` for our
@@ -19,24 +19,55 @@ GraspGen has no config for keeps our name. Exports made before this used our nam
 :func:`read_graspgen` reads both and says which folder each entry came from (:attr:`GraspGenEntry.folder`).
 
 An object's *key* is its mesh path relative to the object dataset root, ``<object>.obj``: the lines of the split
-files, the ``object.file`` of its JSON and the keys of ``map_uuid_to_path.json`` (GraspGen looks the JSON up by it and
-loads ``os.path.join(object_root_dir, key)``). Train with GraspGen's ``object_root_dir = <root>/objects``,
-``grasp_root_dir = <root>/grasp_data/<gripper>`` and ``root_dir = <root>/splits/<gripper>``. Each JSON file::
+files, the ``object.file`` of its JSON and the keys of ``map_uuid_to_path.json``. Where GraspGen's loader
+(NVlabs/GraspGen at a56d518) looks, and so which folders to pass (``<root>`` is ``OUT/dataset/graspgen`` for a
+published dataset):
+
+* ``data.object_root_dir = <root>/objects``: the mesh is ``os.path.join(object_root_dir, key)``
+  (``grasp_gen/dataset/dataset_utils.py:880``); only when that file is missing does it read a
+  ``map_uuid_to_path[_simplified].json`` *in the object root* (lines 883-889, Objaverse UUIDs), which we do not write
+  because every key is a file there.
+* ``data.grasp_root_dir = <root>/grasp_data/<gripper>``: ``GraspJsonDatasetReader`` reads
+  ``<grasp_root_dir>/map_uuid_to_path.json`` ({key: JSON file name}, lines 77-84) and opens
+  ``<grasp_root_dir>/<JSON file name>`` (line 141); without the mapping it scans ``*.json`` and writes one there
+  (lines 85-93), which a read-only mount refuses, so we write it.
+* ``data.root_dir = <root>/splits/<gripper>``: it reads ``<root_dir>/{train,valid}.txt`` (``dataset.py:427``).
+
+GraspGen's own scripts spell these the same way: mount ``<root>`` as its grasp dataset and ``<root>/objects`` as its
+object dataset (``docker/run.sh --grasp_dataset <root> --object_dataset <root>/objects``), and
+``runs/train_graspgen_franka_panda_gen.sh`` (lines 21-26) passes ``/object_dataset``,
+``$GRASP_DIR/grasp_data/$GRIPPER_NAME`` and ``$GRASP_DIR/splits/$GRIPPER_NAME`` unchanged. Each JSON file::
 
     {
       "object":  {"file": "<object>.obj", "scale": 1.0},
-      "gripper": {"name": "<gripper>", "width": max_width, "depth": tcp_offset,
+      "gripper": {"name": "<gripper>", "width": w, "depth": d,
                   "transform_offset_from_asset_to_graspgen_convention": [[0, 0, 0], [0, 0, 0, 1]],
-                  "source_gripper": "<our gripper name>"},
+                  "tcp_offset": tcp_offset, "source_gripper": "<our gripper name>"},
       "grasps":  {"transforms": [(4, 4) nested lists, ...], "object_in_gripper": [true, false, ...],
-                  "grasp_id": [int, ...], "protocol": "<protocol>", "firm_hold": [true, false, ...]}
+                  "grasp_id": [int, ...], "protocol": "<protocol>",
+                  "contact_locations": [[[x, y, z], [x, y, z]], ...], "firm_hold": [true, false, ...]}
     }
 
-GraspGen itself reads ``object.file``, ``object.scale``, ``grasps.transforms`` and ``grasps.object_in_gripper`` (JSON
-booleans: the loader indexes the poses with them as a boolean mask, so 0/1 integers would pick rows 0 and 1); the
-``gripper`` block is the one GraspDataGen writes (informational: GraspGen takes its gripper from its own config
-``config/grippers/<name>.yaml``); ``source_gripper`` (our gripper name), ``grasp_id`` and ``protocol`` are ours,
-for the way back to our tables. Labels: ``object_in_gripper``, the one GraspGen trains on, is our still-held label
+GraspGen itself reads ``object.file``, ``object.scale``, ``grasps.transforms``, ``grasps.object_in_gripper`` (JSON
+booleans: the loader indexes the poses with them as a boolean mask, so 0/1 integers would pick rows 0 and 1) and
+``grasps.contact_locations`` (``dataset_utils.py:907-944``); the ``gripper`` block is the one GraspDataGen writes
+(informational: GraspGen takes its gripper from its own config ``config/grippers/<name>.yaml``), and its ``width`` and
+``depth`` are that config's (:data:`GRASPGEN_GRIPPER_SIZES`: 0.10537486 and 0.10527314 m for ``franka_panda``), so the
+block says what GraspGen will use; for a gripper GraspGen has no config for they are our ``max_width`` and
+``tcp_offset``, what such a config should say. ``tcp_offset`` (our TCP, base link -> pad midpoint along +z),
+``source_gripper`` (our gripper name), ``grasp_id`` and ``protocol`` are ours, for the way back to our tables.
+
+Contacts. ``grasps.contact_locations`` is GraspGen's key (``dataset_utils.py:927-929``), one (2, 3) pair per grasp in
+the mesh frame of the poses, metres: GraspGen keeps the rows of the positives, drops a positive whose pair holds a
+NaN and skips an object none of whose positives has a pair (lines 931-944); without the key it takes each positive's
+base-link origin as its contact (lines 956-960, "HACK - Only works for single cup suction gripper"). Its contact-based
+heads read a pair as in ACRONYM's ``contact_points``: the closing direction ``c1 - c0`` and the opening
+``|c1 - c0|`` (``dataset.py:251-261``, both orders). Ours, from the table's ``contact_points`` / ``contact_fingers``
+(the contacts at the end of closing, object frame): contact 0 the mean of the left pad's (finger 0, on -x) contact
+points, contact 1 the right pad's (+x), so ``c1 - c0`` points along the grasp's +x; a pad without a contact gives NaN
+(written as the token ``NaN``, which Python's ``json`` and so GraspGen read; the file is then not strict JSON). A
+positive has a contact on each pad; negatives often have none, and GraspGen never reads theirs. Tables without those
+columns get no ``contact_locations``. Labels: ``object_in_gripper``, the one GraspGen trains on, is our still-held label
 (the table's ``success``: outcome 5, the object still between the fingers after the protocol's disturbance, as
 ACRONYM's and GraspDataGen's labels are); ``firm_hold`` (ours, written when the table has ``firm``; GraspGen ignores
 it) is the firm-hold label (still held and the object's motion in the hand within the firm-hold tolerances,
@@ -45,14 +76,26 @@ Floats are written with Python's shortest round-trip repr, so the JSON holds the
 
 Frames (stated precisely, and tested). ``grasps.transforms`` are the **gripper base-link frame** in the object's mesh
 frame (GraspGen: "4x4 homogeneous transformation matrix of the base link of gripper"), metres. GraspGen's gripper
-convention is z approach (positive z towards the object), x the fingers' closing direction, and its TCP sits ``depth``
-along +z from the base link (``get_transform_from_base_link_to_tool_tcp`` defaults to ``translation([0, 0, depth])``).
-Our hand base (:mod:`graspgen.grippers`: the flange / hand frame) has exactly these axes, and our TCP (midway
-between the pads) is ``tcp_offset`` along its +z. So we write ``T_base = T_tcp @ Trans(0, 0, -tcp_offset)``
-(:func:`graspgen.io.acronym.hand_base_from_tcp`, the same frame ACRONYM files hold); a GraspGen gripper config for
-our gripper therefore has ``depth = tcp_offset`` and an identity ``transform_offset_from_asset_to_graspgen_convention``
-(the loader post-multiplies the poses by that offset), as the ``gripper`` block records. The meshes are written in
-metres in the same mesh frame as the poses, so ``object.scale`` is 1 (GraspGen scales the mesh by it, not the poses).
+convention is z approach (positive z towards the object), x the fingers' closing direction. Our hand base
+(:mod:`graspgen.grippers`: the flange / hand frame) has exactly these axes, and our TCP (midway between the pads) is
+``tcp_offset`` along its +z. So we write ``T_base = T_tcp @ Trans(0, 0, -tcp_offset)``
+(:func:`graspgen.io.acronym.hand_base_from_tcp`, the same frame ACRONYM files hold), and the identity
+``transform_offset_from_asset_to_graspgen_convention`` (``franka_panda.yaml:24``; the loader post-multiplies the poses
+by it, ``dataset_utils.py:609-631``). For the Panda this base link is the one GraspGen's ``franka_panda`` gripper is
+built in (``config/grippers/franka_panda.py:11-21``: hand mesh at the origin, open fingers at x = +-0.04,
+z = 0.0584, where our ``assets/grippers/panda`` fingers are), so GraspGen's gripper mesh lands on ours and the labels
+describe the pose it sees: the poses are **not** shifted. GraspGen's ``depth`` (0.10527314 m for ``franka_panda``,
+``franka_panda.yaml:23``; "the distance from the gripper root/base link frame to the gripper tool tip frame",
+``robot.py:86-89``) is not our TCP offset (0.1034 m, ACRONYM's pad midpoint): its tool point
+``T_base @ Trans(0, 0, depth)`` lies 1.87 mm beyond our TCP along the approach. That point is all the 1.87 mm moves,
+and it is the same point GraspGen derives on its own Panda data: its control points ``(+-width/2, 0, depth/2)``,
+``(+-width/2, 0, depth)`` (``robot.py:79-81``, loaded by ``franka_panda.py:52-62``) for the training losses and
+metrics, the translation error of its metrics (``metrics.py:84-97``), the visibility filter that drops a positive
+whose tool point is farther than 3 cm (mean of 5 nearest) from the rendered cloud (``dataset_utils.py:248-289``,
+``robot.py:385-392``) and M2T2's grasp rebuilt from a contact (``action_decoder.py:33-37``). Writing
+``T_tcp @ Trans(0, 0, -depth)`` instead would put GraspGen's tool point on our TCP but its gripper 1.87 mm deeper
+than the grasp that was labelled. The meshes are written in metres in the same mesh frame as the poses, so
+``object.scale`` is 1 (GraspGen scales the mesh by it, not the poses).
 
 Splits (:func:`split_of`): deterministic, by a hash of the object name, not by a random draw: an object goes to
 ``valid`` when the first 8 bytes of ``sha256(name)``, read as a big-endian integer and divided by 2**64, are below
@@ -86,6 +129,7 @@ from graspgen.validation import check_number, check_transforms
 
 __all__ = [
     "GRASPGEN_GRIPPER_NAMES",
+    "GRASPGEN_GRIPPER_SIZES",
     "SPLITS",
     "GraspGenObject",
     "GraspGenEntry",
@@ -107,6 +151,12 @@ GRASPGEN_GRIPPER_NAMES = {
 """Our registered gripper name -> GraspGen's (the stem of its ``config/grippers/<name>.yaml``, NVlabs/GraspGen
 at commit a56d518: ``franka_panda``, ``robotiq_2f_85``, ``robotiq_2f_140``, ``single_suction_cup_30mm``). Both
 2F-85 models (boxes and meshes) are the one hand GraspGen calls ``robotiq_2f_85``."""
+
+GRASPGEN_GRIPPER_SIZES = {"franka_panda": (0.10537486, 0.10527314)}
+"""GraspGen's ``width`` and ``depth`` (m) of the grippers whose config has them (``config/grippers/franka_panda.yaml``
+lines 22-23 at commit a56d518; ``robotiq_2f_85.yaml`` has neither): what GraspGen derives its control points and tool
+point from (module docstring, Frames). Written as the JSON's ``gripper.width`` / ``gripper.depth``; a gripper not
+listed gets our ``max_width`` and ``tcp_offset`` there, the values a GraspGen config for it should have."""
 
 _OUR_NAME = {"franka_panda": "panda", "robotiq_2f_85": "robotiq_2f85"}
 """GraspGen's folder name -> our gripper, for files without ``gripper.source_gripper``."""
@@ -138,6 +188,9 @@ class GraspGenObject:
     """The protocol that labelled the grasps (e.g. ``acronym``), recorded in the JSON."""
     firm: np.ndarray | None = None
     """(n,) bool firm-hold labels (written as ``firm_hold``; None: not written)."""
+    contacts: np.ndarray | None = None
+    """(n, 2, 3) float64 contact pairs in the mesh frame, m: [left pad (-x), right pad (+x)], NaN where a pad had none
+    (written as ``contact_locations``; None: not written, and GraspGen takes each grasp's origin instead)."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -162,7 +215,8 @@ class GraspGenEntry:
     success: np.ndarray
     """(n,) bool ``grasps.object_in_gripper``."""
     depth: float | None
-    """``gripper.depth`` (m): base link -> TCP along +z; None when the file has no ``gripper`` block."""
+    """``gripper.depth`` (m): base link -> GraspGen's tool point along +z (GraspGen's value for its grippers,
+    :data:`GRASPGEN_GRIPPER_SIZES`); None when the file has no ``gripper`` block."""
     grasp_ids: np.ndarray | None
     """(n,) int64 ``grasps.grasp_id`` or None."""
     protocol: str
@@ -174,15 +228,20 @@ class GraspGenEntry:
     folder: str = ""
     """The ``grasp_data/<folder>`` it was found in: GraspGen's gripper name (``franka_panda``) in exports written
     now, our own (``panda``) in older ones."""
+    tcp_offset: float | None = None
+    """``gripper.tcp_offset`` (m): base link -> our TCP along +z; older exports, which wrote our TCP offset as
+    ``gripper.depth``, give that; None when the file has neither."""
+    contacts: np.ndarray | None = None
+    """(n, 2, 3) float64 ``grasps.contact_locations`` (NaN where a pad had none) or None when absent."""
 
     def __len__(self) -> int:
         return len(self.transforms)
 
     def tcp_poses(self, depth: float | None = None) -> np.ndarray:
         """(n, 4, 4) TCP poses in the mesh frame: ``transforms @ Trans(0, 0, depth)`` (default the file's
-        ``gripper.depth``, else our gripper of that name's ``tcp_offset``)."""
+        ``gripper.tcp_offset``, else our gripper of that name's ``tcp_offset``)."""
         if depth is None:
-            depth = self.depth if self.depth is not None else load_gripper(self.gripper).tcp_offset
+            depth = self.tcp_offset if self.tcp_offset is not None else load_gripper(self.gripper).tcp_offset
         return tcp_from_hand_base(self.transforms, depth) if len(self) else np.zeros((0, 4, 4))
 
 
@@ -231,16 +290,22 @@ def _grasp_json(obj: GraspGenObject, key: str) -> tuple[str, str]:
     firm = None if obj.firm is None else np.asarray(obj.firm).reshape(-1)
     if firm is not None and len(firm) != n:
         raise SettingsError(f"{obj.name}: firm: expected {n} labels (one per pose), got {len(firm)}")
+    contacts = None if obj.contacts is None else np.asarray(obj.contacts, dtype=np.float64).reshape(-1, 2, 3)
+    if contacts is not None and len(contacts) != n:
+        raise SettingsError(f"{obj.name}: contacts: expected {n} (2, 3) pairs (one per pose), got {len(contacts)}")
     T_base = hand_base_from_tcp(T_tcp, spec.tcp_offset) if n else T_tcp
     name = graspgen_gripper_name(spec.name)
+    width, depth = GRASPGEN_GRIPPER_SIZES.get(name, (float(spec.max_width), float(spec.tcp_offset)))
     data = {
         "object": {"file": key, "scale": 1.0},
-        "gripper": {"name": name, "width": float(spec.max_width), "depth": float(spec.tcp_offset),
+        "gripper": {"name": name, "width": width, "depth": depth,
                     "transform_offset_from_asset_to_graspgen_convention": _IDENTITY_OFFSET,
-                    "source_gripper": spec.name},
+                    "tcp_offset": float(spec.tcp_offset), "source_gripper": spec.name},
         "grasps": {"transforms": T_base.tolist(), "object_in_gripper": [bool(s) for s in success],
                    "grasp_id": [int(i) for i in ids], "protocol": str(obj.protocol)},
     }
+    if contacts is not None:
+        data["grasps"]["contact_locations"] = contacts.tolist()  # NaN written as the token NaN (GraspGen's isnan)
     if firm is not None:
         data["grasps"]["firm_hold"] = [bool(f) for f in firm]
     return json.dumps(data, separators=(",", ":")) + "\n", name
@@ -329,7 +394,9 @@ def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
 
     Reads ``root/object_grasps.parquet`` (columns ``object_name``, ``grasp_id``, ``gripper``, ``protocol``,
     ``pose_object`` (TCP, object mesh frame), ``success`` (written as ``object_in_gripper``), ``firm`` when present
-    (written as ``firm_hold``); rows by object, then ``grasp_id``) and each object's mesh
+    (written as ``firm_hold``), ``contact_points`` and ``contact_fingers`` when present (written as
+    ``contact_locations``: per grasp the mean of each pad's contact points, left then right, NaN for a pad without
+    one); rows by object, then ``grasp_id``) and each object's mesh
     from ``root/objects/<object>.h5`` (``mesh/vertices``, ``mesh/faces``: the frame of ``pose_object``), and calls
     :func:`write_graspgen` with one entry per (object, gripper), grasps in table order.
 
@@ -358,13 +425,32 @@ def export_graspgen(root: Path, *, valid_fraction: float = 0.2) -> list[str]:
     missing = [c for c in wanted if c not in pq.read_schema(path).names]
     if missing:
         raise InputError(f"{path}: not an object grasp table: no column(s) {', '.join(missing)}")
-    has_firm = "firm" in pq.read_schema(path).names
-    objects = _objects_of(root, path, wanted + (["firm"] if has_firm else []), has_firm)
+    names = pq.read_schema(path).names
+    has_firm = "firm" in names
+    has_contacts = "contact_points" in names and "contact_fingers" in names
+    columns = wanted + (["firm"] if has_firm else []) + (["contact_points", "contact_fingers"] if has_contacts else [])
+    objects = _objects_of(root, path, columns, has_firm)
     return [f"graspgen/{rel}" for rel in write_graspgen(root / "graspgen", objects, valid_fraction=valid_fraction)]
 
 
 def _objects_of(root: Path, path: Path, columns: list[str], has_firm: bool) -> Iterator[GraspGenObject]:
     """One :class:`GraspGenObject` per (object, gripper) of the table, in that order, read one object at a time."""
+
+    def contact_pairs(part: pa.Table) -> np.ndarray | None:
+        """(n, 2, 3): per grasp the mean of the left (finger 0) and right (finger 1) pad's contacts, NaN if none."""
+        if "contact_points" not in part.column_names:
+            return None
+        out = np.full((part.num_rows, 2, 3), np.nan)
+        for i, (pts, fingers) in enumerate(zip(part.column("contact_points").to_pylist(),
+                                               part.column("contact_fingers").to_pylist(), strict=True)):
+            points = np.asarray(pts or [], dtype=np.float64).reshape(-1, 3)
+            which = np.asarray(fingers or [], dtype=np.int64)
+            for finger in (0, 1):
+                mine = points[which == finger] if len(which) == len(points) else points[:0]
+                if len(mine):
+                    out[i, finger] = mine.mean(axis=0)
+        return out
+
     for name, rows in objects_of_table(path, columns):
         _check_name(name, str(path))
         grippers = np.asarray(rows.column("gripper").to_pylist(), dtype=object)
@@ -382,6 +468,7 @@ def _objects_of(root: Path, path: Path, columns: list[str], has_firm: bool) -> I
                 gripper=gripper, grasp_ids=part.column("grasp_id").to_numpy(), protocol=str(protocols[0]),
                 firm=part.column("firm").fill_null(False).to_numpy(zero_copy_only=False).astype(bool) if has_firm
                 else None,
+                contacts=contact_pairs(part),
             )
 
 
@@ -466,11 +553,24 @@ def _read_entry(path: Path, root: Path, gripper: str, split_of_key: Mapping[str,
     if firm is not None and (firm.shape != (len(T),) or (len(T) and firm.dtype != np.bool_)):
         raise InputError(f"{path}: grasps.firm_hold must be {len(T)} booleans (one per transform), got shape "
                          f"{firm.shape} of {firm.dtype}")
+    contacts = None
+    if "contact_locations" in grasps:
+        try:
+            contacts = np.asarray(grasps["contact_locations"], dtype=np.float64)
+        except (ValueError, TypeError):
+            contacts = np.zeros((1, 0))  # ragged or not numbers: reported as a shape error below
+        if contacts.size == 0 and len(T) == 0:
+            contacts = np.zeros((0, 2, 3))
+        if contacts.shape != (len(T), 2, 3):
+            raise InputError(f"{path}: grasps.contact_locations must be {len(T)} (2, 3) contact pairs, got shape "
+                             f"{contacts.shape}")
     grip = data.get("gripper") or {}
     ours = str(grip.get("source_gripper") or _OUR_NAME.get(gripper, gripper))
+    # Exports before gripper.tcp_offset wrote our TCP offset as gripper.depth.
+    tcp_offset = grip.get("tcp_offset", grip.get("depth") if "source_gripper" in grip else None)
     success = success.astype(bool)
     firm = None if firm is None else firm.astype(bool)
-    for a in (T, success, ids, firm):
+    for a in (T, success, ids, firm, contacts):
         if a is not None:
             a.setflags(write=False)
     name = path.name[: -len(".grasps.json")] if path.name.endswith(".grasps.json") else path.stem
@@ -478,4 +578,5 @@ def _read_entry(path: Path, root: Path, gripper: str, split_of_key: Mapping[str,
         key=key, name=name, gripper=ours, split=split_of_key.get(key), mesh_path=root / "objects" / key,
         scale=scale, transforms=T, success=success, depth=float(grip["depth"]) if "depth" in grip else None,
         grasp_ids=ids, protocol=str(grasps.get("protocol", "")), path=path, firm=firm, folder=gripper,
+        tcp_offset=None if tcp_offset is None else float(tcp_offset), contacts=contacts,
     )

@@ -23,7 +23,7 @@ def test_tcp_lies_along_the_base_z_axis_and_the_axes_are_shared(random_poses):
         tcp_from_hand_base(np.eye(3), 0.1)
 
 
-@pytest.mark.parametrize("gripper, file_type", [("panda", "franka_panda"), ("robotiq_2f85", "robotiq_2f85")])
+@pytest.mark.parametrize("gripper, file_type", [("panda", "panda"), ("robotiq_2f85", "robotiq_2f85")])
 def test_export_then_import_gives_the_same_poses(tmp_path, gripper, file_type, random_poses):
     T_tcp = random_poses(50, seed=1)
     success = np.arange(50) % 3 == 0
@@ -56,7 +56,7 @@ def test_reads_files_written_the_way_acronym_writes_them(tmp_path, random_poses)
         f["object/file"] = np.bytes_("meshes/Mug/x.obj")
     grasps = read_acronym(path)
     assert grasps.object_file == "meshes/Mug/x.obj" and grasps.object_scale == 1.0
-    assert grasps.gripper_type == "franka_panda" and grasps.object_mass is None
+    assert grasps.gripper_type == "panda" and grasps.object_mass is None
     np.testing.assert_allclose(grasps.tcp_poses(), tcp_from_hand_base(T_base, 0.1034), atol=1e-15)
 
 
@@ -100,3 +100,41 @@ def test_write_checks_its_arguments(tmp_path, random_poses):
     with pytest.raises(ValueError, match="do not pass it twice"):
         write_acronym(tmp_path / "g.h5", random_poses(2), [1, 1], object_file="a.obj",
                       qualities={SUCCESS_KEY: [1, 1]})
+
+
+# Upstream values, from ACRONYM's own example file (NVlabs/acronym at commit d02f58f,
+# data/examples/grasps/Mug_10f6e09036350e92b3f21f1137c3c347_0.0002682457830986903.h5, read with h5py; the same in
+# every file of its release, e.g. ../shared/calibration/acronym_more/*.h5):
+ACRONYM_GRIPPER_TYPE = "panda"  # gripper/type: a variable-length UTF-8 string scalar
+ACRONYM_GRIPPER_CONFIGURATION = [0.04]  # gripper/configuration, float64 (1,)
+ACRONYM_LABEL_DTYPE = np.int64  # grasps/qualities/flex/object_in_gripper
+ACRONYM_OBJECT_FILE = "meshes/Mug/10f6e09036350e92b3f21f1137c3c347.obj"  # object/file: relative to the mesh root
+
+
+def test_panda_files_say_what_acronym_files_say(tmp_path, random_poses):
+    path = tmp_path / "g.h5"
+    write_acronym(path, random_poses(3, seed=4), [1, 0, 1], object_file="meshes/Mug/x.obj", object_scale=1.0,
+                  gripper="panda")
+    with h5py.File(path, "r") as f:
+        assert f["gripper/type"][()].decode() == ACRONYM_GRIPPER_TYPE
+        for key in ("gripper/type", "object/file"):
+            info = h5py.check_string_dtype(f[key].dtype)  # ACRONYM: encoding utf-8, length None
+            assert (info.encoding, info.length, f[key].shape) == ("utf-8", None, ())
+        np.testing.assert_array_equal(f["gripper/configuration"][()], ACRONYM_GRIPPER_CONFIGURATION)
+        assert f["gripper/configuration"].dtype == np.float64
+        assert f["grasps/qualities/flex/object_in_gripper"].dtype == ACRONYM_LABEL_DTYPE
+        assert f["object/file"][()].decode().split("/")[0] == ACRONYM_OBJECT_FILE.split("/")[0]  # meshes/...
+    assert read_acronym(path).gripper == "panda"
+
+
+def test_reads_the_older_exports_franka_panda(tmp_path, random_poses):
+    """Exports made before the Panda was written as ``panda`` said ``franka_panda``: still our Panda."""
+    path = tmp_path / "old.h5"
+    T_base = random_poses(2, seed=5)
+    with h5py.File(path, "w") as f:
+        f["grasps/transforms"] = T_base
+        f["object/file"] = np.bytes_("meshes/x.obj")
+        f["gripper/type"] = np.bytes_("franka_panda")
+    grasps = read_acronym(path)
+    assert grasps.gripper == "panda"
+    np.testing.assert_allclose(grasps.tcp_poses(), tcp_from_hand_base(T_base, 0.1034), atol=1e-15)

@@ -43,6 +43,21 @@ from tests.paths import REPO
 ASSETS = REPO / "assets" / "objects"
 PANDA_TCP_OFFSET = 0.1034  # ACRONYM's Panda hand: TCP 0.1034 m along the hand frame's z (ARCHITECTURE.md)
 OBJECTS = {"box": 650.0, "can": 1000.0}
+
+# GraspGen's conventions, from NVlabs/GraspGen at commit a56d518 (its code cannot be installed or committed here):
+GRASPGEN_PANDA_WIDTH = 0.10537486  # config/grippers/franka_panda.yaml:22 `width`
+GRASPGEN_PANDA_DEPTH = 0.10527314  # config/grippers/franka_panda.yaml:23 `depth`: base link -> its tool point, +z
+GRASPGEN_PANDA_OFFSET = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]  # franka_panda.yaml:24, post-multiplied onto the
+# poses by grasp_gen/dataset/dataset_utils.py:609-631
+GRASPGEN_PANDA_FINGER = (0.04, 0.0584)  # config/grippers/franka_panda.py:20-21: its (open) finger meshes are moved to
+# x = +-0.04, z = 0.0584 from the base link: franka_description's panda_hand frame, ACRONYM's hand frame
+GRASPGEN_CONTACTS_KEY = "contact_locations"  # dataset_utils.py:927-929: grasps.contact_locations, masked by
+# object_in_gripper; (n, 2, 3) pairs (dataset.py:251-261: contact_dir = c1 - c0, offset = |c1 - c0|); a positive whose
+# pair holds a NaN is dropped (dataset_utils.py:931-944); without the key each positive's origin is taken (956-960)
+GRASPGEN_MAPPING_FILE = "map_uuid_to_path.json"  # dataset_utils.py:77: read from grasp_root_dir itself
+GRASPGEN_GRASP_ROOT = "grasp_data/{gripper}"  # runs/train_graspgen_franka_panda_gen.sh:25, relative to GRASP_DIR
+GRASPGEN_SPLITS_ROOT = "splits/{gripper}"  # runs/train_graspgen_franka_panda_gen.sh:26; dataset.py:427 reads
+# f"{root_dir}/{split}.txt"
 MOTIONS = list(FLEX_MOTION)
 
 
@@ -121,7 +136,7 @@ def test_object_acronym_files_round_trip_poses_labels_and_motions(dataset):
         rows = rows_of(dataset, name)
         T_tcp = column_array(rows, "pose_object", (4, 4))
         grasps = read_acronym(dataset / "acronym" / f"{name}.h5")
-        assert len(grasps) == len(rows) and grasps.gripper_type == "franka_panda"
+        assert len(grasps) == len(rows) and grasps.gripper_type == "panda"
         np.testing.assert_allclose(grasps.tcp_poses(), T_tcp, atol=1e-12)
         # the file holds the Panda hand frame: same axes, origin 0.1034 m back along the approach axis
         np.testing.assert_array_equal(grasps.transforms[:, :3, :3], T_tcp[:, :3, :3])
@@ -208,7 +223,9 @@ def test_graspgen_export_round_trips_poses_flags_and_meshes(dataset):
         np.testing.assert_array_equal(entry.success, rows.column("success").to_numpy(zero_copy_only=False))
         np.testing.assert_array_equal(entry.firm, rows.column("firm").to_numpy(zero_copy_only=False))
         np.testing.assert_array_equal(entry.grasp_ids, rows.column("grasp_id").to_numpy())
-        assert entry.scale == 1.0 and entry.depth == PANDA_TCP_OFFSET and entry.protocol == "acronym"
+        assert entry.scale == 1.0 and entry.protocol == "acronym"
+        assert entry.depth == GRASPGEN_PANDA_DEPTH and entry.tcp_offset == PANDA_TCP_OFFSET
+        np.testing.assert_array_equal(entry.contacts, expected_contacts(rows))
         record = read_object(dataset / "objects" / f"{entry.name}.h5")
         mesh = trimesh.load(entry.mesh_path, process=False)
         np.testing.assert_array_equal(mesh.vertices, record.vertices)
@@ -235,11 +252,90 @@ def test_graspgen_files_read_the_way_graspgen_reads_them(dataset):
         T_tcp = column_array(rows, "pose_object", (4, 4))
         success = rows.column("success").to_numpy(zero_copy_only=False)
         assert positive.shape == (int(success.sum()), 4, 4)
-        depth = data["gripper"]["depth"]
-        tcp = positive[:, :3, 3] + depth * positive[:, :3, 2]
+        tcp_offset = data["gripper"]["tcp_offset"]
+        tcp = positive[:, :3, 3] + tcp_offset * positive[:, :3, 2]
         np.testing.assert_allclose(tcp, T_tcp[success][:, :3, 3], atol=1e-12)
         np.testing.assert_array_equal(positive[:, :3, :3], T_tcp[success][:, :3, :3])  # z approach, x closing
         assert data["gripper"]["transform_offset_from_asset_to_graspgen_convention"] == [[0, 0, 0], [0, 0, 0, 1]]
+
+
+def expected_contacts(rows: pa.Table) -> np.ndarray:
+    """Per grasp: the mean of the left (finger 0) and right (finger 1) pad's contact points, NaN where none."""
+    out = np.full((rows.num_rows, 2, 3), np.nan)
+    for i, (pts, fingers) in enumerate(zip(rows.column("contact_points").to_pylist(),
+                                           rows.column("contact_fingers").to_pylist())):
+        pts = np.asarray(pts or [], dtype=float).reshape(-1, 3)
+        for f in (0, 1):
+            if (np.asarray(fingers or []) == f).any():
+                out[i, f] = pts[np.asarray(fingers) == f].mean(axis=0)
+    return out
+
+
+def test_graspgen_conventions_are_graspgen_s_own(dataset):
+    """Each convention against GraspGen's value (constants above, with the upstream file and line)."""
+    export_graspgen(dataset)
+    gg = dataset / "graspgen"
+    grasp_root = gg / GRASPGEN_GRASP_ROOT.format(gripper="franka_panda")
+    splits_root = gg / GRASPGEN_SPLITS_ROOT.format(gripper="franka_panda")
+    mapping = json.loads((grasp_root / GRASPGEN_MAPPING_FILE).read_text())
+    keys = sorted((splits_root / "train.txt").read_text().split() + (splits_root / "valid.txt").read_text().split())
+    assert sorted(mapping) == keys
+    for key, json_name in mapping.items():
+        assert (gg / "objects" / key).is_file()  # object_root_dir = <dataset>/graspgen/objects (dataset_utils.py:880)
+        data = json.loads((grasp_root / json_name).read_text())
+        grip = data["gripper"]
+        assert (grip["width"], grip["depth"]) == (GRASPGEN_PANDA_WIDTH, GRASPGEN_PANDA_DEPTH)
+        assert grip["transform_offset_from_asset_to_graspgen_convention"] == GRASPGEN_PANDA_OFFSET
+        assert grip["tcp_offset"] == PANDA_TCP_OFFSET
+        poses = np.array(data["grasps"]["transforms"])
+        mask = np.array(data["grasps"]["object_in_gripper"])
+        contacts = np.array(data["grasps"][GRASPGEN_CONTACTS_KEY])
+        rows = rows_of(dataset, key[: -len(".obj")])
+        T_tcp = column_array(rows, "pose_object", (4, 4))
+        assert contacts.shape == (len(poses), 2, 3)
+        # GraspGen's loader, dataset_utils.py:927-943, as written there
+        pos_contacts = contacts[mask]
+        keep = np.logical_not(np.any(np.any(np.isnan(pos_contacts), axis=1), axis=1))
+        assert keep.all(), "every positive has a contact on each pad, so GraspGen drops none"
+        positive = poses[mask][keep]
+        # the pair is ours: the pads' contacts, in the poses' mesh frame; c1 - c0 along the grasp's +x (closing)
+        np.testing.assert_array_equal(pos_contacts, expected_contacts(rows)[mask])
+        closing = pos_contacts[:, 1] - pos_contacts[:, 0]
+        assert (np.einsum("ij,ij->i", closing, positive[:, :3, 0]) > 0).all()
+        # the poses are the hand base link GraspGen's franka_panda mesh is built in, so they are not moved: GraspGen's
+        # tool point (base link @ Trans(0, 0, depth): robot.py:388-392, metrics.py:84-97, dataset_utils.py:264-266)
+        # lies depth - tcp_offset = 1.87 mm beyond our TCP along the approach, as on GraspGen's own Panda data
+        tool = positive[:, :3, 3] + GRASPGEN_PANDA_DEPTH * positive[:, :3, 2]
+        tcp = T_tcp[mask][keep]
+        np.testing.assert_allclose(tool - tcp[:, :3, 3], (GRASPGEN_PANDA_DEPTH - PANDA_TCP_OFFSET) * tcp[:, :3, 2],
+                                   atol=1e-12)
+    # our Panda's (open) right finger sits where GraspGen's does in the same hand frame: its base at z = 0.0584, its
+    # inner face at x = 0.04 (assets/grippers/panda/finger.obj, in the frame our poses are written in)
+    lo = trimesh.load(REPO / "assets/grippers/panda/finger.obj", process=False).bounds[0]
+    assert lo[0] == pytest.approx(GRASPGEN_PANDA_FINGER[0], abs=5e-4)
+    assert lo[2] == pytest.approx(GRASPGEN_PANDA_FINGER[1], abs=5e-4)
+
+
+def test_graspgen_contacts_are_written_only_when_given_nan_where_a_pad_had_none(tmp_path):
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    T = np.tile(np.eye(4), (2, 1, 1))
+    pairs = np.array([[[-0.025, 0.0, 0.0], [0.025, 0.0, 0.0]], [[np.nan] * 3, [0.025, 0.01, 0.0]]])
+    write_graspgen(tmp_path / "a", [GraspGenObject("o", box.vertices, box.faces, T, [True, False], "panda",
+                                                   contacts=pairs)])
+    text = (tmp_path / "a/grasp_data/franka_panda/o.grasps.json").read_text()
+    assert '"contact_locations":[[[-0.025,0.0,0.0],[0.025,0.0,0.0]],[[NaN,NaN,NaN],[0.025,0.01,0.0]]]' in text
+    (entry,) = read_graspgen(tmp_path / "a")
+    np.testing.assert_array_equal(entry.contacts, pairs)
+    write_graspgen(tmp_path / "b", [GraspGenObject("o", box.vertices, box.faces, T, [True, False], "panda")])
+    assert "contact_locations" not in (tmp_path / "b/grasp_data/franka_panda/o.grasps.json").read_text()
+    assert read_graspgen(tmp_path / "b")[0].contacts is None
+    with pytest.raises(SettingsError, match=r"o: contacts: expected 2 \(2, 3\) pairs \(one per pose\), got 1"):
+        write_graspgen(tmp_path / "c", [GraspGenObject("o", box.vertices, box.faces, T, [True, False], "panda",
+                                                       contacts=pairs[:1])])
+    bad = tmp_path / "a/grasp_data/franka_panda/o.grasps.json"
+    bad.write_text(text.replace('[[NaN,NaN,NaN],[0.025,0.01,0.0]]', '[[0.0,0.0],[0.025,0.01,0.0]]'))
+    with pytest.raises(InputError, match=r"o.grasps.json: grasps.contact_locations must be 2 \(2, 3\) contact pairs"):
+        read_graspgen(tmp_path / "a")
 
 
 def test_split_is_a_hash_of_the_name():
