@@ -110,7 +110,7 @@ def evaluate_grasps(
         True: no support, gravity off until the fingers have closed. False: on a table, in the most probable
         stable pose (module docstring; ``table`` protocol only).
     protocol : str, optional
-        ``table``, ``acronym`` or ``graspgen`` (module docstring); None: ``params.lift.protocol`` (``table`` by
+        ``table``, ``acronym`` or ``graspdatagen`` (module docstring); None: ``params.lift.protocol`` (``table`` by
         default).
     jobs : int
         Worker processes (contiguous chunks of grasps; each builds its own model); <= 0 means one per core.
@@ -142,7 +142,7 @@ def evaluate_grasps(
     graspgen.errors.InputError
         The mesh cannot be used (missing, broken, absurd size); the message names the file.
     graspgen.errors.SettingsError
-        Unknown gripper (the message lists the choices) or protocol; ``acronym`` or ``graspgen`` with
+        Unknown gripper (the message lists the choices) or protocol; ``acronym`` or ``graspdatagen`` with
         ``free_space=False``; poses or widths of the wrong shape, non-finite, or not rigid (the message names the
         first bad index); ``params``, ``robustness`` or ``rng`` of the wrong type.
     """

@@ -31,7 +31,7 @@ def _without_backend(section: ObjectGraspsParams) -> str:
 
 def test_the_cpu_backend_keeps_the_object_grasps_keys():
     stage = stage_module.ObjectGraspsStage()
-    for sets in ([], ["object_grasps.protocol=graspgen"], ["object_grasps.warp.nworld=8"]):
+    for sets in ([], ["object_grasps.protocol=graspdatagen"], ["object_grasps.warp.nworld=8"]):
         config = load_config(Config, None, sets)
         assert canonical_json(stage.params(config)) == _without_backend(config.object_grasps)
     default = load_config(Config, None, []).object_grasps  # the dataset stage hashes the section itself

@@ -62,12 +62,12 @@ _BOX_PAD_TORSION = pytest.mark.xfail(strict=True, reason="box pads' corner conta
 @pytest.mark.parametrize("name", [n if n == "panda" else pytest.param(n, marks=_BOX_PAD_TORSION)
                                   for n in sorted(GRIPPERS)])
 def test_pivot_threshold_within_10_percent(name, tmp_path):
-    r = mechanics.run_case("pivot", name, "graspgen", cache_dir=tmp_path, rel_tol=0.03)
+    r = mechanics.run_case("pivot", name, "graspdatagen", cache_dir=tmp_path, rel_tol=0.03)
     assert math.isfinite(r.firm), r
     assert abs(r.firm - r.analytic) <= 0.1 * r.analytic, r
 
 
 def test_linear_slip_threshold_within_10_percent(tmp_path):
-    r = mechanics.run_case("slip", "panda", "graspgen", cache_dir=tmp_path, rel_tol=0.03)
+    r = mechanics.run_case("slip", "panda", "graspdatagen", cache_dir=tmp_path, rel_tol=0.03)
     assert abs(r.label - r.analytic) <= 0.1 * r.analytic, r
     assert r.analytic == pytest.approx(2 * 0.5 * 70.0 / 9.81, rel=0.01)  # 7.1 kg, m g <= 2 mu F
