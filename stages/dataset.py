@@ -79,7 +79,7 @@ from graspgen.io.dataset_table import (
     join_scene,
     write_grasps_parquet,
 )
-from graspgen.io.graspgen_format import export_graspgen
+from graspgen.io.nvidia_graspgen import export_graspgen
 from graspgen.io.probe_files import publish_probe
 from graspgen.io.publish_check import (
     ShardFile,
@@ -155,7 +155,7 @@ class DatasetParams:
     grasps."""
     graspgen: bool = True
     """Also export the object-centric sets in GraspGen's dataset layout (graspgen/: splits and one JSON per
-    object; :mod:`graspgen.io.graspgen_format`)."""
+    object; :mod:`graspgen.io.nvidia_graspgen`)."""
     card: CardSettings = dataclasses.field(default_factory=CardSettings, metadata={FLATTEN: True})
     """The card and its plots (:class:`graspgen.io.card_stats.CardSettings`: ``plots``, ``histogram_bins``,
     ``example_scenes``, ``example_grasps``, written at this section's level)."""
