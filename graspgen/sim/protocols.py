@@ -39,6 +39,7 @@ from graspgen.validation import (
     check_number,
     check_vector,
 )
+from shared_utils.keys import KEY_NAME, KEY_VALUES
 from shared_utils.renames import RENAMED_FROM, RENAMED_VALUES, renamed_message
 
 __all__ = [
@@ -46,6 +47,7 @@ __all__ = [
     "OUTCOME_NAMES",
     "PHASES",
     "PROTOCOLS",
+    "PROTOCOL_KEYS",
     "RENAMED_PROTOCOLS",
     "AcronymParams",
     "GraspDataGenParams",
@@ -81,6 +83,10 @@ PROTOCOLS: tuple[str, ...] = ("table", "acronym", "graspdatagen")
 #: taken for this package or for NVIDIA's GraspGen format). A config or call that still uses one fails with a
 #: message naming the new name.
 RENAMED_PROTOCOLS = MappingProxyType({"graspgen": "graspdatagen"})
+
+#: How content keys and seeds hash a protocol name: the renamed ones as they were (``shared_utils.keys.KEY_VALUES``),
+#: so the rename keeps every key and random draw.
+PROTOCOL_KEYS = MappingProxyType({new: old for old, new in RENAMED_PROTOCOLS.items()})
 
 
 def check_protocol(name: str, value: object, choices: tuple[str, ...] = PROTOCOLS, why: str = "") -> str:
@@ -316,14 +322,15 @@ class LiftParams:
 
     # -- protocol ---------------------------------------------------------------------------------------------------
     protocol: Literal["table", "acronym", "graspdatagen"] = field(
-        default="table", metadata={RENAMED_VALUES: RENAMED_PROTOCOLS})
+        default="table", metadata={RENAMED_VALUES: RENAMED_PROTOCOLS, KEY_VALUES: PROTOCOL_KEYS})
     """``table``: place at the pre-grasp pose, approach, close, lift, hold, shake (``shake``, on by default), on a
     support or in free space (the pipeline's protocol). ``acronym``: ACRONYM's free-space protocol, placed at the
     grasp with the jaws open, close, shake along and about the hand's axes, label = object still between the
     fingers (:class:`AcronymParams`)."""
     acronym: AcronymParams = field(default_factory=AcronymParams)
     """Settings of the ``acronym`` protocol (ignored by the others)."""
-    graspdatagen: GraspDataGenParams = field(default_factory=GraspDataGenParams, metadata={RENAMED_FROM: ("graspgen",)})
+    graspdatagen: GraspDataGenParams = field(default_factory=GraspDataGenParams,
+                                             metadata={RENAMED_FROM: ("graspgen",), KEY_NAME: "graspgen"})
     """Settings of the ``graspdatagen`` protocol (ignored by the others): gravity off, close, then tug the object with
     its own weight along the approach and four tilted directions; held if both fingers still touch it."""
 

@@ -80,6 +80,7 @@ from graspgen.workflows.evaluate_settings import EvaluateParams
 from graspgen.workflows.evaluation_world import EvaluationWorld, ObjectWorld, evaluation_world
 from graspgen.workflows.robustness import grasp_robustness
 from graspgen.workflows.robustness_columns import GraspRobustness
+from shared_utils.keys import key_view
 
 __all__ = ["content_seed", "evaluate_grasps"]
 
@@ -172,6 +173,8 @@ def content_seed(world: EvaluationWorld, robustness: RobustnessParams) -> int:
     and the preparation's warnings do not enter: the same grasps and settings give the same draws wherever the
     file lies."""
     settings = {k: v for k, v in world.info.items() if k not in ("mesh", "warnings")}
+    settings["lift"] = key_view(world.world.lift)  # renamed settings as they were named: the same draws
+    settings["protocol"] = settings["lift"]["protocol"]
     settings["robustness"] = dataclasses.asdict(robustness)
     digest = hashlib.sha256()
     digest.update(np.ascontiguousarray(world.T_tcp, dtype="<f8").tobytes())

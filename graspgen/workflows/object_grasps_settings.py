@@ -12,9 +12,10 @@ import numpy as np
 from graspgen.geometry.antipodal import AntipodalParams
 from graspgen.grippers import ACRONYM_GRIPPER, GripperSpec, load_gripper
 from graspgen.quality.epsilon import EpsilonParams
-from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult, check_protocol
+from graspgen.sim.protocols import PROTOCOL_KEYS, LiftParams, Outcome, RolloutResult, check_protocol
 from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams, check_backend
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
+from shared_utils.keys import KEY_VALUES
 
 __all__ = ["LABELS", "PROTOCOLS", "SELECTIONS", "ObjectGraspsParams", "default_overhang", "default_tilt",
            "free_space_sampler", "protocol_opening"]
@@ -37,7 +38,7 @@ class ObjectGraspsParams:
     gripper: str = ACRONYM_GRIPPER
     """Gripper model: robotiq_2f85, panda or box_jaw, or the path of a gripper file (.yaml, .yml, .json). The Panda
     is ACRONYM's and GraspGen's gripper."""
-    protocol: str = "acronym"
+    protocol: str = dataclasses.field(default="acronym", metadata={KEY_VALUES: PROTOCOL_KEYS})
     """Free-space protocol of the rollouts: ``acronym`` (placed open at the grasp, close, shake; ACRONYM's test) or
     ``graspdatagen`` (close, then five tugs at the object's weight; GraspDataGen's test). It sets ``lift.protocol``."""
     selection: str = "natural"
