@@ -1,7 +1,7 @@
 """The warp backend (MuJoCo Warp, :mod:`graspgen.sim.warp_backend`) against the CPU backend (issue 25).
 
 On the device it finds (the first CUDA GPU, else Warp's CPU device; ``--device`` picks one), for each protocol
-(``acronym``, ``graspgen``, ``table``; ``table`` on a support, the object settled on it in its most probable stable
+(``acronym``, ``graspdatagen``, ``table``; ``table`` on a support, the object settled on it in its most probable stable
 pose, the jaws opened to the ray-cast width plus the margin, as ``gen evaluate --support`` does):
 
 * **agreement**: the calibration grasps (ACRONYM files: the first ``--objects`` of ``--calibration``, default all
@@ -32,7 +32,7 @@ per-grasp codes (``records``), so ``--resume`` adds objects to a run and the poo
 counts of every object; a crashed object is ``{"crashed": [...]}`` and is tried again by ``--resume``. The agreement
 steps as many worlds as the object has grasps that reach the device (at most ``--agreement-worlds``).
 
-Run: ``python -m bench.bench_warp [--device cuda:0] [--protocols acronym,graspgen,table] [--out $OUT/warp.json]
+Run: ``python -m bench.bench_warp [--device cuda:0] [--protocols acronym,graspdatagen,table] [--out $OUT/warp.json]
 [--skip N] [--limit N] [--resume]``. Needs the warp extra (``pip install -e '.[warp]'``).
 """
 

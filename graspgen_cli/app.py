@@ -237,8 +237,8 @@ def show_rollout(
     index: Annotated[int | None, typer.Option("--index", help="Row of the grasp in --grasps (0-based).", min=0)] = None,
     protocol: Annotated[
         str | None,
-        typer.Option("--protocol", help="With --grasps: acronym, graspgen or table (default as gen evaluate: acronym "
-                     "for ACRONYM files, table for Parquet or with --support)."),
+        typer.Option("--protocol", help="With --grasps: acronym, graspdatagen or table (default as gen evaluate: "
+                     "acronym for ACRONYM files, table for Parquet or with --support)."),
     ] = None,
     gripper: Annotated[
         str | None, typer.Option("--gripper", help="With --grasps: the gripper (default: the ACRONYM file's).")

@@ -42,7 +42,7 @@ def evaluate(
         str | None,
         typer.Option(
             "--protocol",
-            help="acronym (ACRONYM's free-space close-and-shake), graspgen (GraspDataGen's free-space tug test: "
+            help="acronym (ACRONYM's free-space close-and-shake), graspdatagen (GraspDataGen's free-space tug test: "
             "gravity off, close, pull with the object's weight along +z and four tilted directions) or table "
             "(approach, close, lift); default: acronym for ACRONYM files (table with --support), table for Parquet.",
         ),

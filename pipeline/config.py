@@ -6,6 +6,10 @@ range is a :class:`~pipeline.errors.ConfigError` whose message starts with the k
 
     objects.pahts: unknown key; valid keys: bundled, coacd, density, ...
     objects.density: must be > 0, got -1
+    object_grasps.lift.protocol: protocol 'graspgen' was renamed 'graspdatagen'
+
+A key or value that was renamed (field metadata :data:`shared_utils.renames.RENAMED_FROM` /
+:data:`~shared_utils.renames.RENAMED_VALUES`) is answered with its new name.
 
 Range checks live in each dataclass's ``__post_init__`` and raise ``ValueError("field: message")``; the loader
 prefixes the section path.
@@ -23,6 +27,7 @@ from typing import Any, Literal
 import yaml
 
 from pipeline.errors import ConfigError
+from shared_utils.renames import RENAMED_FROM, RENAMED_VALUES, renamed_message
 
 __all__ = [
     "FLATTEN",
@@ -178,6 +183,11 @@ def _build(cls: type, raw: Any, prefix: str, base: Any = None) -> Any:
     flat = _flattened(cls, hints)
     valid = (set(fields) - set(flat)).union(*flat.values())
     unknown = sorted(set(raw) - valid)
+    former = {old: name for name, f in fields.items() for old in f.metadata.get(RENAMED_FROM, ())}
+    for key in unknown:
+        if key in former:
+            what = "section" if dataclasses.is_dataclass(hints[former[key]]) else "key"
+            raise ConfigError(f"{prefix}{key}: {renamed_message(what, key, former[key])}")
     if unknown:
         key = unknown[0]
         raise ConfigError(f"{prefix}{key}: unknown key; valid keys: {', '.join(sorted(valid))}")
@@ -187,6 +197,7 @@ def _build(cls: type, raw: Any, prefix: str, base: Any = None) -> Any:
         if name in flat:
             kwargs[name] = _build(hints[name], {k: v for k, v in raw.items() if k in flat[name]}, prefix, nested)
         elif name in raw:
+            _check_renamed_value(f, raw[name], f"{prefix}{name}")
             kwargs[name] = _convert(hints[name], raw[name], f"{prefix}{name}", nested)
         elif dataclasses.is_dataclass(hints[name]):
             kwargs[name] = _build(hints[name], {}, f"{prefix}{name}.", nested)
@@ -198,6 +209,13 @@ def _build(cls: type, raw: Any, prefix: str, base: Any = None) -> Any:
         raise ConfigError(f"{prefix}{exc}") from None
     except TypeError as exc:  # a field without a default that the file did not set
         raise ConfigError(f"{prefix.rstrip('.') or '(top level)'}: {exc}") from None
+
+
+def _check_renamed_value(f: dataclasses.Field, value: Any, path: str) -> None:
+    """ConfigError naming the new value when ``value`` is one the field's values were renamed from."""
+    renamed = f.metadata.get(RENAMED_VALUES, {})
+    if isinstance(value, str) and value in renamed:
+        raise ConfigError(f"{path}: {renamed_message(f.name, value, renamed[value])}")
 
 
 def _type_name(tp: Any) -> str:

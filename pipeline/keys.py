@@ -20,6 +20,7 @@ import numpy as np
 
 from pipeline.config import FLATTEN, to_dict
 from shared_utils.digest import sha256_file as sha256_file  # re-exported: one definition, below engine and library
+from shared_utils.keys import KEY_NAME, KEY_VALUES
 from shared_utils.keys import KEY_OMIT_DEFAULT as KEY_OMIT_DEFAULT  # re-exported: the library's settings set it
 
 KEY_SCHEME = 2
@@ -43,11 +44,14 @@ def _jsonable(obj: Any) -> Any:
         for f in dataclasses.fields(obj):
             if _omitted(obj, f):
                 continue
-            value = _jsonable(getattr(obj, f.name))
+            raw = getattr(obj, f.name)
+            if type(raw) is str and KEY_VALUES in f.metadata:  # a renamed value: hashed as it was
+                raw = f.metadata[KEY_VALUES].get(raw, raw)
+            value = _jsonable(raw)
             if f.metadata.get(FLATTEN):  # its keys at the section's level, as the config file writes them
                 out.update(value)
             else:
-                out[f.name] = value
+                out[f.metadata.get(KEY_NAME, f.name)] = value  # a renamed field: hashed under its former name
         return out
     # Containers are walked here, not first converted whole by to_dict: a key's upstream part can hold thousands
     # of keys, and converting it at every level made hashing it quadratic in its depth times its size.

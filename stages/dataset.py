@@ -25,7 +25,7 @@ shards as hard links, copies where links are not possible)::
     objects/<name>.h5       the object shards of the library (mesh, convex parts, mass properties, stable poses)
     acronym/<name>.h5       each object's grasps as an ACRONYM grasp file (:mod:`graspgen.io.acronym`), rows in
                             grasps.parquet order; its mesh as acronym/meshes/<name>.obj (the file's object/file)
-    graspgen/               the object sets in GraspGen's layout (:mod:`graspgen.io.graspgen_format`)
+    graspgen/               the object sets in GraspGen's layout (:mod:`graspgen.io.nvidia_graspgen`)
     contact_graspnet/       the scenes as Contact-GraspNet's training data (:mod:`graspgen.io.contact_graspnet`)
     plots/*.png             outcomes, robustness, epsilon, correlation (label columns present), examples
     probe/model.pt          the learnability probe's grasp evaluator (when the probe stage ran); probe/report.json
@@ -82,7 +82,7 @@ from graspgen.io.dataset_table import (
     join_scene,
     write_grasps_parquet,
 )
-from graspgen.io.graspgen_format import export_graspgen
+from graspgen.io.nvidia_graspgen import export_graspgen
 from graspgen.io.probe_files import publish_probe
 from graspgen.io.publish_check import (
     ShardFile,
@@ -158,7 +158,7 @@ class DatasetParams:
     grasps."""
     graspgen: bool = True
     """Also export the object-centric sets in GraspGen's dataset layout (graspgen/: splits and one JSON per
-    object; :mod:`graspgen.io.graspgen_format`)."""
+    object; :mod:`graspgen.io.nvidia_graspgen`)."""
     contact_graspnet: bool = True
     """Also export the scenes as Contact-GraspNet's training data (contact_graspnet/: one .npz of grasp contacts per
     scene, the meshes, the splits; the placed object-centric grasps when the object sets ran, else the scene grasps;

@@ -1,7 +1,8 @@
 """Fidelity studies: how far our labels can be trusted, measured against references, not asserted in tests.
 
 Each module is a script, run from the repository root as ``python -m studies.<name> --help``; it prints its tables
-and writes ``studies/results_<name>.json`` (gitignored). The throughput benchmarks are in ``bench/`` instead.
+and writes ``studies/results_<name>.json`` (gitignored). ``studies/README.md`` has one section per study: its
+question, command, result files and the doc page that reports it. The throughput benchmarks are in ``bench/``.
 
 Against ACRONYM's FleX labels on the calibration grasps (:mod:`studies.calibration` finds and reads them):
 

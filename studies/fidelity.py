@@ -8,8 +8,8 @@ Franka Panda grasps each, ``grasps/qualities/flex/object_in_gripper``), the gras
   shake, on by default since issue 11: ``LiftParams.shake``): what ``gen evaluate`` did before protocols were named
   (then without the shake), the "before" numbers;
 * ``acronym``: ACRONYM's own test (:class:`graspgen.sim.protocols.AcronymParams`): the "after" numbers;
-* ``graspgen``: GraspDataGen's tug test (:class:`graspgen.sim.protocols.GraspGenParams`), on request
-  (``--protocols table,acronym,graspgen``).
+* ``graspdatagen``: GraspDataGen's tug test (:class:`graspgen.sim.protocols.GraspDataGenParams`), on request
+  (``--protocols table,acronym,graspdatagen``).
 
 Printed per object and pooled: agreement (our success == FleX held), Cohen's kappa, our and FleX's success rates,
 the confusion of our outcome codes against FleX held/lost, and, among our successes, the AUC with which a score
@@ -47,7 +47,7 @@ would measure nothing. Where each default comes from (the ACRONYM paper and file
 scene, the Panda's data sheet, physical arguments) is written in :class:`graspgen.sim.protocols.AcronymParams`; the
 sweep only shows how much the agreement depends on each choice.
 
-Run: ``python -m studies.fidelity [-j 2] [--limit N] [--protocols table,acronym,graspgen] [--sweep] [--speed]
+Run: ``python -m studies.fidelity [-j 2] [--limit N] [--protocols table,acronym,graspdatagen] [--sweep] [--speed]
 [--robustness N] [--calibration DIR] [--out FILE]``; writes ``studies/results_fidelity.json`` (gitignored).
 ``--limit N`` takes N evenly spaced grasps per object (quick runs); the default is all of them. The learning set
 (``--calibration ../shared/learn/acronym --limit 100``: 100 grasps of each of its 69 files) is read the same way.
@@ -73,7 +73,7 @@ from graspgen.io.acronym import read_acronym
 from graspgen.quality.epsilon import grasp_epsilon
 from graspgen.quality.perturbation import RobustnessParams
 from graspgen.sim.gripper_model import build_gripper
-from graspgen.sim.protocols import OUTCOME_NAMES, AcronymParams, GraspGenParams, LiftParams
+from graspgen.sim.protocols import OUTCOME_NAMES, AcronymParams, GraspDataGenParams, LiftParams
 from graspgen.workflows.evaluate import evaluate_grasps
 from graspgen.workflows.evaluate_columns import METADATA_KEY
 from graspgen.workflows.evaluate_settings import EvaluateParams
@@ -437,7 +437,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("-j", "--jobs", type=int, default=2, help="worker processes per evaluation (default 2)")
     ap.add_argument("--limit", type=int, default=None, help="evenly spaced grasps per object (default: all)")
-    ap.add_argument("--protocols", default="table,acronym", help="comma-separated: table, acronym, graspgen")
+    ap.add_argument("--protocols", default="table,acronym", help="comma-separated: table, acronym, graspdatagen")
     ap.add_argument("--sweep", action="store_true", help="sensitivity of pooled agreement/kappa (acronym protocol)")
     ap.add_argument("--sweep-only", default="", help="comma-separated words: sweep only parameters naming one")
     ap.add_argument("--speed", action="store_true", help="rollouts/s of each protocol on the calibration mug, one "
@@ -454,7 +454,7 @@ def main(argv: list[str] | None = None) -> int:
                     "firm_tolerances": {"translation": LiftParams().firm_translation,
                                         "rotation": LiftParams().firm_rotation},
                     "gripper": gripper_info(args.gripper), "protocols": {},
-                    "acronym_params": AcronymParams().to_dict(), "graspgen_params": GraspGenParams().to_dict(),
+                    "acronym_params": AcronymParams().to_dict(), "graspdatagen_params": GraspDataGenParams().to_dict(),
                     "machine": platform.platform(),
                     "mujoco": mujoco.__version__}
     g = report["gripper"]
@@ -462,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
     for protocol in protocols:
         lift = LiftParams().with_protocol(protocol)
         report["protocols"][protocol] = run_protocol(cases, lift, args, protocol)
-        kind = {"table": "free space, shake on", "acronym": "ACRONYM", "graspgen": "GraspDataGen"}[protocol]
+        kind = {"table": "free space, shake on", "acronym": "ACRONYM", "graspdatagen": "GraspDataGen"}[protocol]
         print_protocol(f"{protocol} protocol ({kind})",
                        report["protocols"][protocol], bool(args.robustness))
         print_labels(report["protocols"][protocol])

@@ -13,7 +13,7 @@ in the calibration folder, Panda grasps, the file's mass, friction and scale), t
 Printed per protocol: the fraction of outcome labels (codes 0-5) that change, the fraction of success labels
 (code 5 or not) that change, and the confusion table (rows baseline, columns refined).
 
-Run: ``python -m studies.label_stability_protocols [-j 2] [--limit 300] [--protocols table,acronym,graspgen]
+Run: ``python -m studies.label_stability_protocols [-j 2] [--limit 300] [--protocols table,acronym,graspdatagen]
 [--calibration DIR] [--json PATH]``; ``--limit N`` takes N evenly spaced grasps of the mug's 2,000 (default 300;
 0 = all). Writes ``studies/results_label_stability_protocols.json``.
 """

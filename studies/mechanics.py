@@ -1,13 +1,13 @@
 """Mechanics cases: where the simulator's labels flip against Coulomb friction's threshold, per case, bundled
 gripper and protocol (:mod:`graspgen.workflows.mechanics`).
 
-Run: ``python -m studies.mechanics [--grippers panda,...] [--protocols acronym,graspgen,table] [--kinds
+Run: ``python -m studies.mechanics [--grippers panda,...] [--protocols acronym,graspdatagen,table] [--kinds
 slip,heavy,pivot,wedge] [--json PATH]``; one process, one core, ~2-4 minutes for the whole matrix. Writes
 ``studies/results_mechanics.json``.
 
 Trimmed from the matrix (and why): ``wedge`` x ``table`` (the wedge must widen away from the palm to be squeezed
 out along the approach, so on a table it would stand on its narrow end, and the table under it would stop the
-ejection); ``heavy`` x ``graspgen`` (its tug is the object's weight with nothing added: the same case as ``slip``).
+ejection); ``heavy`` x ``graspdatagen`` (its tug is the object's weight with nothing added: the same case as ``slip``).
 Per case the table shows the analytic threshold under the protocol's disturbance and with it off (``rest``), and
 where the success label and the firm hold (5 mm / 5 degrees) flip, with their errors against the analytic value.
 """
@@ -24,8 +24,8 @@ from graspgen.workflows import mechanics
 from studies.calibration import REPO
 
 GRIPPERS = ("panda", "robotiq_2f85_mesh", "robotiq_2f85", "box_jaw")
-PROTOCOLS = ("acronym", "graspgen", "table")
-TRIMMED = {("wedge", "table"), ("heavy", "graspgen")}
+PROTOCOLS = ("acronym", "graspdatagen", "table")
+TRIMMED = {("wedge", "table"), ("heavy", "graspdatagen")}
 RESULTS = Path(__file__).resolve().parent / "results_mechanics.json"
 
 

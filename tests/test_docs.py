@@ -1,6 +1,6 @@
 """The documentation stays true to the tree: the generated column reference is current, the README is short, links,
-anchors, file paths and module names in README.md, ARCHITECTURE.md and docs/*.md point to things that exist, and the
-README's config example is a valid config."""
+anchors, file paths and module names in README.md, ARCHITECTURE.md, docs/*.md and studies/README.md point to things
+that exist, and the README's config example is a valid config."""
 
 from __future__ import annotations
 
@@ -17,7 +17,8 @@ from graspgen.io.dataset_table import LABEL_TYPES, REQUIRED_SCHEMA
 from graspgen.workflows import column_docs
 
 ROOT = Path(__file__).resolve().parents[1]
-DOCS = [ROOT / "README.md", ROOT / "ARCHITECTURE.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", ROOT / "ARCHITECTURE.md", *sorted((ROOT / "docs").glob("*.md")),
+        ROOT / "studies" / "README.md"]
 WRITTEN = [p for p in DOCS if p.name != "columns.md"]  # columns.md quotes the code's docstrings as they are
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 CODE_PATH = re.compile(r"`((?:graspgen|graspgen_cli|pipeline|stages|bench|tests|assets|configs|tools)/[^`\s]*)`")

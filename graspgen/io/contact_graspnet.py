@@ -52,7 +52,7 @@ sorted by object index, then grasp id. Kept beside, under keys Contact-GraspNet 
   ``other_widths`` and ``other_<label>``.
 
 Files are written atomically, each ``.npz`` as a zip with fixed timestamps (``numpy.savez`` stamps the time), so the
-same dataset gives the same bytes. Splits (:func:`graspgen.io.graspgen_format.split_of`, the GraspGen export's hash
+same dataset gives the same bytes. Splits (:func:`graspgen.io.nvidia_graspgen.split_of`, the GraspGen export's hash
 split with the same fraction, ``valid`` named ``test``): Contact-GraspNet holds out the *last*
 ``DATA.num_test_scenes`` files by name, so training scenes are named ``0_train_*`` and held-out ones ``1_test_*``
 (:func:`scene_file`); set ``num_test_scenes`` to ``splits/scenes.json``'s value. Objects recur across scenes, so a
@@ -83,7 +83,7 @@ from graspgen.io.acronym import obj_text
 from graspgen.io.arrow import column_array
 from graspgen.io.atomic import atomic_path, write_text_atomic
 from graspgen.io.dataset_table import float_values
-from graspgen.io.graspgen_format import split_of
+from graspgen.io.nvidia_graspgen import split_of
 from graspgen.validation import check_transforms
 
 __all__ = [
@@ -219,7 +219,7 @@ def export_contact_graspnet(root: Path, *, test_fraction: float = TEST_FRACTION,
         ``objects/<object>.h5`` (meshes in the frame of ``pose_object``) and ``placed_grasps.parquet`` (used when
         present) or ``grasps.parquet`` (rows sorted by ``scene_id``).
     test_fraction : float
-        Long-run share of held-out scenes and objects (:func:`graspgen.io.graspgen_format.split_of`).
+        Long-run share of held-out scenes and objects (:func:`graspgen.io.nvidia_graspgen.split_of`).
     table_top : float
         m added to every z (:data:`CGN_TABLE_TOP`).
 

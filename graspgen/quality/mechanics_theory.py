@@ -17,7 +17,7 @@ Disturbances (per unit mass; g = 9.81 m/s^2, ``gen evaluate``'s gravity):
   the TCP (load: gravity, ``g`` in the pads' plane; moment ``I_g alpha(t) + m g d cos(theta)``).
 * ``table``: the same shake after a lift that accelerates at ``lift_acceleration``; gravity along the approach
   (a top-down grasp).
-* ``graspgen``: no gravity; the object's weight (``force_scale`` x m g) pulls along the approach and four
+* ``graspdatagen``: no gravity; the object's weight (``force_scale`` x m g) pulls along the approach and four
   directions tilted from it: the approach tug is the largest load in the pads' plane and about the closing axis.
 """
 
@@ -39,7 +39,7 @@ _DT = 1e-4
 
 def grip_force(lift: LiftParams, spec: GripperSpec) -> float:
     """Force (N) each pad presses with under ``lift``'s protocol."""
-    own = {"acronym": lift.acronym.grip_force, "graspgen": lift.graspgen.grip_force}.get(lift.protocol,
+    own = {"acronym": lift.acronym.grip_force, "graspdatagen": lift.graspdatagen.grip_force}.get(lift.protocol,
                                                                                          lift.grip_force)
     return float(spec.force_limit if own is None else own)
 
@@ -67,8 +67,8 @@ def shake_profiles(lift: LiftParams) -> list[tuple[np.ndarray, np.ndarray, np.nd
     d sees (m/s^2: its gravity moment is ``m a_n d cos(theta)``), the hand's rotation about the closing axis (rad)
     and its angular acceleration (rad/s^2)."""
     zero = np.zeros(1)
-    if lift.protocol == "graspgen":
-        g = lift.graspgen.force_scale * G
+    if lift.protocol == "graspdatagen":
+        g = lift.graspdatagen.force_scale * G
         return [(np.array([g]), np.array([g]), zero, zero)]
     if lift.protocol == "acronym":
         p = lift.acronym

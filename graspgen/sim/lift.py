@@ -23,7 +23,7 @@ ids and views (squared distances and cosines, no allocation beyond a few small t
 rollouts/s with the default shake (160-240 without), within 1.12x of the bare ``mj_step`` cost of the same steps.
 
 Protocols (:data:`graspgen.sim.protocols.PROTOCOLS`, ``LiftParams.protocol``): ``table``, ``acronym`` and
-``graspgen``, described in :mod:`graspgen.sim.protocols`.
+``graspdatagen``, described in :mod:`graspgen.sim.protocols`.
 
 Determinism: every rollout starts from ``mj_resetData`` (which also clears the solver's warm start) plus the saved
 initial ``qpos``, so a rollout's result depends only on its inputs, not on earlier rollouts in the same
@@ -134,7 +134,7 @@ class LiftSimulator(LiftState):
     its pose at the end of closing (``target_pose_closed``).
 
     **Firm hold**, a second label beside the outcome, in every protocol: from the end of closing on, at every check
-    of the disturbance (``table``: lift, hold, shake; ``acronym``: shake, settle; ``graspgen``: tugs) and at the
+    of the disturbance (``table``: lift, hold, shake; ``acronym``: shake, settle; ``graspdatagen``: tugs) and at the
     end, the target's pose in the TCP frame (the simulated hand's) is compared with its pose when closing ended; the
     largest displacement and rotation are :attr:`~graspgen.sim.protocols.RolloutResult.max_rel_translation` /
     ``max_rel_rotation``, and a success is firm (:attr:`~graspgen.sim.protocols.RolloutResult.firm`) when both stay
@@ -186,7 +186,7 @@ class LiftSimulator(LiftState):
         target, roles, index = self.target_roles(target_body)
         self.steps = 0
         R = np.asarray(T_tcp_world, dtype=float)[:3, :3]
-        if self.params.protocol == "graspgen":
+        if self.params.protocol == "graspdatagen":
             return self._rollout_free_space(pos, quat, R, target, roles, observer, self._graspgen_tugs)
         if self.params.protocol == "acronym":
             return self._rollout_free_space(pos, quat, R, target, roles, observer, self._acronym_shake)
@@ -281,7 +281,7 @@ class LiftSimulator(LiftState):
                            motion_shaking, pose_closed, self._final_drift(target, drift))
 
     def _rollout_free_space(self, pos, quat, R, target, roles, observer, disturb) -> RolloutResult:
-        """The frame the free-space protocols share (``acronym``, ``graspgen``): gravity off, the hand placed at the
+        """The frame the free-space protocols share (``acronym``, ``graspdatagen``): gravity off, the hand placed at the
         grasp pose with its jaws open (touching anything there decides the grasp, the target without the fingers'
         allowance), closed, then ``disturb(pos, quat, R, target, check_held, observer)`` tests the grip (the
         protocol's own part); success when both jaws still touch the target at the end."""
@@ -347,9 +347,9 @@ class LiftSimulator(LiftState):
         self._wait(s.settle_steps, "holding", check_held, observer)
 
     def _graspgen_tugs(self, pos, quat, R, target, check_held, observer) -> None:
-        """``graspgen`` (:class:`graspgen.sim.protocols.GraspGenParams`): gravity stays off; the object's weight
+        """``graspdatagen`` (:class:`graspgen.sim.protocols.GraspDataGenParams`): gravity stays off; the object's weight
         pulls it along each tug direction (TCP frame at the grasp) at its centre of mass."""
-        weight = self.params.graspgen.force_scale * float(self.model.body_subtreemass[target]) * math.sqrt(
+        weight = self.params.graspdatagen.force_scale * float(self.model.body_subtreemass[target]) * math.sqrt(
             float(self.gravity @ self.gravity))
         for direction in self.schedule.tug_dirs:
             self.data.xfrc_applied[target, :3] = weight * (R @ direction)

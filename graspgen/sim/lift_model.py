@@ -161,7 +161,7 @@ def set_grip(m: mujoco.MjModel, params: LiftParams, index: LiftIndex) -> tuple[f
             for vadr in jaw_vadr:
                 m.dof_damping[vadr] = damping * grip_force / model_force
         return grip_force, closing_speed
-    free = params.acronym if params.protocol == "acronym" else params.graspgen  # the same grip settings
+    free = params.acronym if params.protocol == "acronym" else params.graspdatagen  # the same grip settings
     grip_force = model_force if free.grip_force is None else free.grip_force
     if free.closing_speed is not None:
         closing_speed = free.closing_speed

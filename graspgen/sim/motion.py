@@ -116,9 +116,9 @@ class Schedule:
     settle_steps: int = 0
     """Steps of the hold after the shake (``acronym``)."""
     tug_steps: int = 0
-    """Steps of each tug (``graspgen``)."""
+    """Steps of each tug (``graspdatagen``)."""
     tug_dirs: np.ndarray | None = None
-    """``(5, 3)`` unit tug directions in the TCP frame (``graspgen``; :meth:`GraspGenParams.directions`)."""
+    """``(5, 3)`` unit tug directions in the TCP frame (``graspdatagen``; :meth:`GraspDataGenParams.directions`)."""
 
 
 def rollout_schedule(params: LiftParams, dt: float, min_width: float, max_width: float,
@@ -151,15 +151,15 @@ def rollout_schedule(params: LiftParams, dt: float, min_width: float, max_width:
     if params.shake:
         shake_z = shake_wave(params.shake_amplitude, params.shake_frequency, params.shake_cycles, dt)
         shake_qx = shake_quats(params.shake_angle, params.shake_frequency, params.shake_cycles, dt)
-    if params.protocol in ("acronym", "graspgen"):
-        free = params.acronym if params.protocol == "acronym" else params.graspgen
+    if params.protocol in ("acronym", "graspdatagen"):
+        free = params.acronym if params.protocol == "acronym" else params.graspdatagen
         open_width = float(np.clip(max_width if free.open_width is None else free.open_width, min_width, max_width))
         # From fully open to fully closed takes (open - min) / closing_speed: never stop closing before that.
         full_close = 1.25 * (open_width - min_width) / closing_speed
         close_max_steps = max(close_max_steps, math.ceil(full_close / dt - 1e-9))
-    if params.protocol == "graspgen":
-        tug_steps = max(1, int(round(params.graspgen.tug_time / dt)))
-        tug_dirs = params.graspgen.directions()
+    if params.protocol == "graspdatagen":
+        tug_steps = max(1, int(round(params.graspdatagen.tug_time / dt)))
+        tug_dirs = params.graspdatagen.directions()
     if params.protocol == "acronym":
         acr = params.acronym
         shake_z = shake_wave(acr.shake_amplitude, acr.shake_frequency, acr.shake_cycles, dt)

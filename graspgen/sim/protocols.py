@@ -1,5 +1,5 @@
 """The evaluation protocols' settings and the record of one rollout: :class:`LiftParams` (with its sections
-:class:`AcronymParams` and :class:`GraspGenParams`), the outcome codes (:class:`Outcome`, ARCHITECTURE.md,
+:class:`AcronymParams` and :class:`GraspDataGenParams`), the outcome codes (:class:`Outcome`, ARCHITECTURE.md,
 Conventions) and :class:`RolloutResult`. The protocols run in :class:`graspgen.sim.lift.LiftSimulator` (the rules
 are written out in its docstring); the motion profiles they follow are :mod:`graspgen.sim.motion`'s.
 
@@ -10,10 +10,10 @@ hand is placed at the grasp with open fingers and closes on the floating object,
 approach axis, the hand shakes along and about its own axes, and the label is whether the object is still between
 the fingers (:class:`AcronymParams` cites where each number comes from). On the calibration mug
 (``studies/fidelity.py``) a held object takes ~650-950 steps (0.2-0.8 s closing from fully open, 1 s of shaking, 0.1 s
-settle), ~50 rollouts/s. ``graspgen`` is GraspDataGen's (the data generator of NVIDIA's GraspGen) free-space tug
+settle), ~50 rollouts/s. ``graspdatagen`` is GraspDataGen's (the data generator of NVIDIA's GraspGen) free-space tug
 test: gravity off, the open hand at the grasp closes, then the object is pulled with its own weight along the hand's
 approach axis and four directions tilted 63.4 degrees from it, 0.5 s each; the label is whether both fingers still
-touch it (:class:`GraspGenParams` cites the source).
+touch it (:class:`GraspDataGenParams` cites the source).
 """
 
 from __future__ import annotations
@@ -23,10 +23,12 @@ import enum
 import math
 import struct
 from dataclasses import dataclass, field, fields
+from types import MappingProxyType
 from typing import Literal
 
 import numpy as np
 
+from graspgen.errors import SettingsError
 from graspgen.sim.physics import PhysicsOptions
 from graspgen.validation import (
     check,
@@ -37,16 +39,21 @@ from graspgen.validation import (
     check_number,
     check_vector,
 )
+from shared_utils.keys import KEY_NAME, KEY_VALUES
+from shared_utils.renames import RENAMED_FROM, RENAMED_VALUES, renamed_message
 
 __all__ = [
     "Outcome",
     "OUTCOME_NAMES",
     "PHASES",
     "PROTOCOLS",
+    "PROTOCOL_KEYS",
+    "RENAMED_PROTOCOLS",
     "AcronymParams",
-    "GraspGenParams",
+    "GraspDataGenParams",
     "LiftParams",
     "RolloutResult",
+    "check_protocol",
 ]
 
 
@@ -68,9 +75,28 @@ OUTCOME_NAMES: tuple[str, ...] = tuple(o.name.lower() for o in Outcome)
 PHASES: tuple[str, ...] = ("placement", "approach", "closing", "lifting", "holding", "shaking", "end")
 
 #: The named protocols (:attr:`LiftParams.protocol`): ``table`` (the pipeline's grasp-and-lift, the default),
-#: ``acronym`` (ACRONYM's free-space close-and-shake, :class:`AcronymParams`) and ``graspgen`` (GraspDataGen's
-#: free-space tug test, :class:`GraspGenParams`).
-PROTOCOLS: tuple[str, ...] = ("table", "acronym", "graspgen")
+#: ``acronym`` (ACRONYM's free-space close-and-shake, :class:`AcronymParams`) and ``graspdatagen`` (GraspDataGen's
+#: free-space tug test, :class:`GraspDataGenParams`).
+PROTOCOLS: tuple[str, ...] = ("table", "acronym", "graspdatagen")
+
+#: Former protocol names and their names now: ``graspgen`` was GraspDataGen's protocol (renamed so that it is not
+#: taken for this package or for NVIDIA's GraspGen format). A config or call that still uses one fails with a
+#: message naming the new name.
+RENAMED_PROTOCOLS = MappingProxyType({"graspgen": "graspdatagen"})
+
+#: How content keys and seeds hash a protocol name: the renamed ones as they were (``shared_utils.keys.KEY_VALUES``),
+#: so the rename keeps every key and random draw.
+PROTOCOL_KEYS = MappingProxyType({new: old for old, new in RENAMED_PROTOCOLS.items()})
+
+
+def check_protocol(name: str, value: object, choices: tuple[str, ...] = PROTOCOLS, why: str = "") -> str:
+    """``value`` if it is one of ``choices``. SettingsError ``"name: protocol 'graspgen' was renamed
+    'graspdatagen'"`` for a former name (:data:`RENAMED_PROTOCOLS`), else ``"name: must be one of table, acronym,
+    graspdatagen<why>, got 'x'"``."""
+    if isinstance(value, str) and value in RENAMED_PROTOCOLS:
+        raise SettingsError(f"{name}: {renamed_message('protocol', value, RENAMED_PROTOCOLS[value])}")
+    check(name, isinstance(value, str) and value in choices, f"be one of {', '.join(choices)}{why}", value)
+    return value
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -191,8 +217,8 @@ _GRASPDATAGEN_TUGS = ((0.0, 0.0, 1.0), (0.0, 2.0, 1.0), (0.0, -2.0, 1.0), (2.0, 
 
 
 @dataclass(frozen=True)
-class GraspGenParams:
-    """Settings of the ``graspgen`` protocol (``LiftParams(protocol="graspgen")``): the grasp validation of
+class GraspDataGenParams:
+    """Settings of the ``graspdatagen`` protocol (``LiftParams(protocol="graspdatagen")``): the grasp validation of
     GraspDataGen, the data generator published with NVIDIA's GraspGen (Murali et al., "GraspGen: A Diffusion-based
     Framework for 6-DOF Grasping", arXiv:2507.13097; github.com/NVlabs/GraspDataGen, ``scripts/graspgen/grasp_sim.py``,
     Isaac Lab / PhysX).
@@ -289,21 +315,23 @@ class LiftParams:
     (``shake_*`` below say which).
 
     ``protocol`` names the phase sequence (:data:`PROTOCOLS`): ``table`` (default; every field below but
-    ``acronym`` and ``graspgen``), ``acronym`` (its own settings in ``acronym``) or ``graspgen`` (its own settings
-    in ``graspgen``); of the fields below these two use the closing stop (``close_speed_tol``, ``close_timeout``),
-    ``check_interval`` and the physics. :meth:`with_protocol` switches.
+    ``acronym`` and ``graspdatagen``), ``acronym`` (its own settings in ``acronym``) or ``graspdatagen`` (its own
+    settings in ``graspdatagen``); of the fields below these two use the closing stop (``close_speed_tol``,
+    ``close_timeout``), ``check_interval`` and the physics. :meth:`with_protocol` switches.
     """
 
     # -- protocol ---------------------------------------------------------------------------------------------------
-    protocol: Literal["table", "acronym", "graspgen"] = "table"
+    protocol: Literal["table", "acronym", "graspdatagen"] = field(
+        default="table", metadata={RENAMED_VALUES: RENAMED_PROTOCOLS, KEY_VALUES: PROTOCOL_KEYS})
     """``table``: place at the pre-grasp pose, approach, close, lift, hold, shake (``shake``, on by default), on a
     support or in free space (the pipeline's protocol). ``acronym``: ACRONYM's free-space protocol, placed at the
     grasp with the jaws open, close, shake along and about the hand's axes, label = object still between the
     fingers (:class:`AcronymParams`)."""
     acronym: AcronymParams = field(default_factory=AcronymParams)
     """Settings of the ``acronym`` protocol (ignored by the others)."""
-    graspgen: GraspGenParams = field(default_factory=GraspGenParams)
-    """Settings of the ``graspgen`` protocol (ignored by the others): gravity off, close, then tug the object with
+    graspdatagen: GraspDataGenParams = field(default_factory=GraspDataGenParams,
+                                             metadata={RENAMED_FROM: ("graspgen",), KEY_NAME: "graspgen"})
+    """Settings of the ``graspdatagen`` protocol (ignored by the others): gravity off, close, then tug the object with
     its own weight along the approach and four tilted directions; held if both fingers still touch it."""
 
     # -- approach ---------------------------------------------------------------------------------------------------
@@ -424,9 +452,9 @@ class LiftParams:
     """``"implicitfast"`` (implicit in the stiff jaw damping), ``"implicit"``, ``"euler"`` or ``"rk4"``."""
 
     def __post_init__(self) -> None:
-        check_choice("protocol", self.protocol, PROTOCOLS)
+        check_protocol("protocol", self.protocol)
         check_instance("acronym", self.acronym, AcronymParams)
-        check_instance("graspgen", self.graspgen, GraspGenParams)
+        check_instance("graspdatagen", self.graspdatagen, GraspDataGenParams)
         for key in ("approach_distance", "width_margin", "lift_height", "hold_time", "shake_amplitude",
                     "shake_angle", "max_target_shift", "max_target_turn", "slip_tolerance",
                     "slip_rotation_tolerance", "firm_translation", "firm_rotation"):
@@ -456,12 +484,12 @@ class LiftParams:
 
     def with_protocol(self, protocol: str) -> LiftParams:
         """A copy with ``protocol`` set (the other settings, the protocols' sections included, are kept)."""
-        check_choice("protocol", protocol, PROTOCOLS)
+        check_protocol("protocol", protocol)
         return dataclasses.replace(self, protocol=protocol)
 
     def to_dict(self) -> dict:
         """Plain-data view (for configs and metadata)."""
-        return {f.name: (getattr(self, f.name).to_dict() if f.name in ("acronym", "graspgen")
+        return {f.name: (getattr(self, f.name).to_dict() if f.name in ("acronym", "graspdatagen")
                          else getattr(self, f.name)) for f in fields(self)}
 
 
@@ -528,7 +556,7 @@ class RolloutResult:
     max_rel_translation: float = math.nan
     """Largest displacement (m) of the target's centre of mass in the TCP frame (the simulated hand's frame, not
     the world's) from the end of closing, over every check (each ``check_interval`` steps) of the disturbance
-    (``table``: lift, hold, shake; ``acronym``: shake and settle; ``graspgen``: the tugs) and its end. Unlike
+    (``table``: lift, hold, shake; ``acronym``: shake and settle; ``graspdatagen``: the tugs) and its end. Unlike
     ``rel_translation`` (end minus start) an object that swings and swings back is caught. NaN when no
     disturbance started (a collision, or code 3)."""
     max_rel_rotation: float = math.nan

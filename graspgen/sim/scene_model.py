@@ -241,7 +241,7 @@ def free_space_spec(obj: PlacedObject, physics: PhysicsOptions | None = None) ->
     """One object alone in free space: :func:`build_scene_spec` of ``[obj]`` with the ground and the support removed.
 
     The object is the free body ``obj/0_<name>`` at ``obj.pose`` and nothing else can be touched: the world of the
-    free-space protocols (``acronym``, ``graspgen``; ``table`` with ``gravity_until_closed``) used by
+    free-space protocols (``acronym``, ``graspdatagen``; ``table`` with ``gravity_until_closed``) used by
     :func:`graspgen.workflows.evaluate.evaluate_grasps` and :mod:`graspgen.workflows.object_grasps`.
 
     Parameters

@@ -1,4 +1,4 @@
-"""The protocols (``acronym``, ``graspgen``, ``table``) on MuJoCo Warp (MJWarp): many grasps at once, one per world.
+"""The protocols (``acronym``, ``graspdatagen``, ``table``) on MuJoCo Warp (MJWarp): many grasps at once, one per world.
 
 :class:`WarpLiftSimulator` takes the same compiled scene as :class:`graspgen.sim.lift.LiftSimulator` (objects, support,
 gripper attached with :func:`graspgen.sim.gripper_model.attach_gripper`) and rolls out a batch of grasps in ``nworld``
@@ -56,7 +56,7 @@ __all__ = ["BACKENDS", "KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WarpParams", "Warp
 BACKENDS: tuple[str, ...] = ("mujoco", "warp")
 
 #: The protocols the warp backend runs.
-WARP_PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen", "table")
+WARP_PROTOCOLS: tuple[str, ...] = ("acronym", "graspdatagen", "table")
 
 _INSTALL = "pip install -e '.[warp]' (mujoco-warp and warp-lang)"
 

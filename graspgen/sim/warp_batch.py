@@ -64,7 +64,7 @@ def disturbance_segments(params: LiftParams, schedule: Schedule) -> list[Segment
 
 def start_gravity(cpu: LiftSimulator, R: np.ndarray) -> np.ndarray:
     """Gravity (3,) of a world once its closing ended, for the grasp's rotation ``R (3, 3)``
-    (:meth:`LiftSimulator._acronym_shake`; ``graspgen``: off; ``table``: the scene's)."""
+    (:meth:`LiftSimulator._acronym_shake`; ``graspdatagen``: off; ``table``: the scene's)."""
     if cpu.params.protocol == "table":
         return cpu.gravity.copy()
     if cpu.params.protocol == "acronym":
@@ -351,7 +351,7 @@ class BatchRun:
                 self.marked[i] = True
             if s.kind == "tug":
                 cpu = self.sim.cpu
-                weight = self.sim.params.graspgen.force_scale * float(cpu.model.body_subtreemass[t]) * \
+                weight = self.sim.params.graspdatagen.force_scale * float(cpu.model.body_subtreemass[t]) * \
                     math.sqrt(float(cpu.gravity @ cpu.gravity))
                 self.xfrc[i, t, :3] = weight * (self.R[i] @ s.table)
 

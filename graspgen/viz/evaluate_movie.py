@@ -11,7 +11,7 @@ mesh (same joints; the physics model has only the convex parts). :func:`graspgen
 the PNG strip or GIF. ``gen show rollout --grasps FILE --index I`` is the command line for it.
 
 Frames (:func:`after_closing_frames`): the start and the end of closing, then the rest spent after closing, where the
-label is decided (the shake of ``acronym``, the tugs of ``graspgen``, the lift and hold of ``table``), by
+label is decided (the shake of ``acronym``, the tugs of ``graspdatagen``, the lift and hold of ``table``), by
 :func:`graspgen.viz.rollout_movie.pick_frames` (every phase end, then evenly in time); a rollout that ended before
 closing did is thinned as a whole.
 """

@@ -80,6 +80,7 @@ from graspgen.workflows.evaluate_settings import EvaluateParams
 from graspgen.workflows.evaluation_world import EvaluationWorld, ObjectWorld, evaluation_world
 from graspgen.workflows.robustness import grasp_robustness
 from graspgen.workflows.robustness_columns import GraspRobustness
+from shared_utils.keys import key_view
 
 __all__ = ["content_seed", "evaluate_grasps"]
 
@@ -110,7 +111,7 @@ def evaluate_grasps(
         True: no support, gravity off until the fingers have closed. False: on a table, in the most probable
         stable pose (module docstring; ``table`` protocol only).
     protocol : str, optional
-        ``table``, ``acronym`` or ``graspgen`` (module docstring); None: ``params.lift.protocol`` (``table`` by
+        ``table``, ``acronym`` or ``graspdatagen`` (module docstring); None: ``params.lift.protocol`` (``table`` by
         default).
     jobs : int
         Worker processes (contiguous chunks of grasps; each builds its own model); <= 0 means one per core.
@@ -142,7 +143,7 @@ def evaluate_grasps(
     graspgen.errors.InputError
         The mesh cannot be used (missing, broken, absurd size); the message names the file.
     graspgen.errors.SettingsError
-        Unknown gripper (the message lists the choices) or protocol; ``acronym`` or ``graspgen`` with
+        Unknown gripper (the message lists the choices) or protocol; ``acronym`` or ``graspdatagen`` with
         ``free_space=False``; poses or widths of the wrong shape, non-finite, or not rigid (the message names the
         first bad index); ``params``, ``robustness`` or ``rng`` of the wrong type.
     """
@@ -172,6 +173,8 @@ def content_seed(world: EvaluationWorld, robustness: RobustnessParams) -> int:
     and the preparation's warnings do not enter: the same grasps and settings give the same draws wherever the
     file lies."""
     settings = {k: v for k, v in world.info.items() if k not in ("mesh", "warnings")}
+    settings["lift"] = key_view(world.world.lift)  # renamed settings as they were named: the same draws
+    settings["protocol"] = settings["lift"]["protocol"]
     settings["robustness"] = dataclasses.asdict(robustness)
     digest = hashlib.sha256()
     digest.update(np.ascontiguousarray(world.T_tcp, dtype="<f8").tobytes())

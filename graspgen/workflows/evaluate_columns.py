@@ -22,7 +22,7 @@ firm                 bool            firm hold: outcome 5 (still in the hand) an
                                      hand within ``lift.firm_translation`` / ``firm_rotation``
 max_rel_translation  float64         largest displacement of the object in the TCP frame from the end of
                                      closing over the disturbance (``acronym``: shake and settle; ``table``:
-                                     lift, hold, shake; ``graspgen``: tugs), m (NaN if not reached)
+                                     lift, hold, shake; ``graspdatagen``: tugs), m (NaN if not reached)
 max_rel_rotation     float64         largest rotation relative to the TCP over the same span, rad
 pose                 float64[16]     the TCP pose evaluated, object frame, 4x4 row-major
 contact_points       list<float64>   finger-object contacts at the end of closing, object frame, k*3 values

@@ -83,7 +83,7 @@ def _settings(params: EvaluateParams | None, protocol: str | None, free_space: b
     params = EvaluateParams() if params is None else check_instance("params", params, EvaluateParams)
     if protocol is not None:
         params = dataclasses.replace(params, lift=params.lift.with_protocol(protocol))
-    if params.lift.protocol in ("acronym", "graspgen") and not free_space:
+    if params.lift.protocol in ("acronym", "graspdatagen") and not free_space:
         raise SettingsError(f"protocol: {params.lift.protocol!r} is a free-space protocol (no support plane); use "
                             "'table' with a support")
     return params

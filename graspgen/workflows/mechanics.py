@@ -4,7 +4,7 @@ gives there.
 Each case is one object built as :func:`graspgen.workflows.evaluation_world.evaluation_world` builds ``gen
 evaluate``'s (a mesh file, prepared, decomposed and placed exactly as the labels' path does), one bundled gripper and
 one protocol
-(``acronym``, ``graspgen``, ``table``), a variable swept across an analytic threshold by bisection, and the
+(``acronym``, ``graspdatagen``, ``table``), a variable swept across an analytic threshold by bisection, and the
 threshold itself (:mod:`graspgen.quality.mechanics_theory`). Grasp frame: the TCP at the object's centre (or ``d``
 from it), closing along the object's x, approach along its -z; the table protocol takes the object resting on its
 largest (z) face and grasps it from above. A case reports where the simulator's success label flips and where its
@@ -67,7 +67,7 @@ class CaseResult:
     gripper: str
     """Bundled gripper name (or a gripper file's path)."""
     protocol: str
-    """``acronym``, ``graspgen`` or ``table``."""
+    """``acronym``, ``graspdatagen`` or ``table``."""
     variable: str
     """What was swept and its unit: ``mass kg``, ``offset m`` or ``half-angle rad``."""
     analytic: float

@@ -52,7 +52,7 @@ rollouts):
 
 2. **Rollouts** in free space (:func:`free_space_simulator`: the object alone, :func:`graspgen.sim.scene_model.
    free_space_spec`, the gripper attached; compiled once) with a free-space protocol of :mod:`graspgen.sim.protocols`:
-   ``acronym`` (default; the hand placed open at the grasp, close, shake) or ``graspgen`` (close, five tugs at the
+   ``acronym`` (default; the hand placed open at the grasp, close, shake) or ``graspdatagen`` (close, five tugs at the
    object's weight). Both open the jaws to the protocol's ``open_width`` (fully by default), whatever the grasp's
    width (the ``open_width`` column). Candidates are rolled out one by one in trial order; a success is kept while
    fewer than ``target_positives`` successes are kept, a failure while fewer than ``target_negatives`` failures
@@ -87,7 +87,7 @@ object_name             string          the object (the record's name)
 grasp_id                int32           0..n-1 in trial order
 candidate               string          ``antipodal`` or ``near_miss``
 gripper                 string          gripper name or file (``object_grasps.gripper``)
-protocol                string          ``acronym`` or ``graspgen``
+protocol                string          ``acronym`` or ``graspdatagen``
 pose_object             float64[16]     TCP pose in the record's mesh frame, 4x4 row-major (z approach, x closing)
 width                   float64         pad separation at the sampled contacts, m (a near miss: its parent's)
 open_width              float64         jaw opening the protocol used, m

@@ -12,14 +12,15 @@ import numpy as np
 from graspgen.geometry.antipodal import AntipodalParams
 from graspgen.grippers import ACRONYM_GRIPPER, GripperSpec, load_gripper
 from graspgen.quality.epsilon import EpsilonParams
-from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
+from graspgen.sim.protocols import PROTOCOL_KEYS, LiftParams, Outcome, RolloutResult, check_protocol
 from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams, check_backend
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
+from shared_utils.keys import KEY_VALUES
 
 __all__ = ["LABELS", "PROTOCOLS", "SELECTIONS", "ObjectGraspsParams", "default_overhang", "default_tilt",
            "free_space_sampler", "protocol_opening"]
 
-PROTOCOLS: tuple[str, ...] = ("acronym", "graspgen")
+PROTOCOLS: tuple[str, ...] = ("acronym", "graspdatagen")
 """The protocols an object-centric set may use: the free-space ones of :data:`graspgen.sim.protocols.PROTOCOLS`."""
 
 LABELS: tuple[str, ...] = ("held", "firm")
@@ -37,9 +38,9 @@ class ObjectGraspsParams:
     gripper: str = ACRONYM_GRIPPER
     """Gripper model: robotiq_2f85, panda or box_jaw, or the path of a gripper file (.yaml, .yml, .json). The Panda
     is ACRONYM's and GraspGen's gripper."""
-    protocol: str = "acronym"
+    protocol: str = dataclasses.field(default="acronym", metadata={KEY_VALUES: PROTOCOL_KEYS})
     """Free-space protocol of the rollouts: ``acronym`` (placed open at the grasp, close, shake; ACRONYM's test) or
-    ``graspgen`` (close, then five tugs at the object's weight; GraspDataGen's test). It sets ``lift.protocol``."""
+    ``graspdatagen`` (close, then five tugs at the object's weight; GraspDataGen's test). It sets ``lift.protocol``."""
     selection: str = "natural"
     """Which rollouts are kept. ``natural`` (default): every antipodal candidate that does not collide at placement
     (outcomes 3-5), whatever its outcome, until ``target_grasps`` are kept: the sampler's own contact-making,
@@ -86,7 +87,7 @@ class ObjectGraspsParams:
     ACRONYM samples: the friction cone of its published coefficient (1.0) and the TCP at the contacts' midpoint
     (one depth: free space has no table for the finger tips to reach)."""
     lift: LiftParams = dataclasses.field(default_factory=lambda: LiftParams(protocol="acronym"))
-    """The rollout's protocol settings (``lift.acronym``, ``lift.graspgen``, physics); ``lift.protocol`` is set
+    """The rollout's protocol settings (``lift.acronym``, ``lift.graspdatagen``, physics); ``lift.protocol`` is set
     from ``protocol``."""
     friction: float = 1.0
     """Sliding friction coefficient (dimensionless) of an object whose record carries none (``attrs["friction"]``);
@@ -120,8 +121,7 @@ class ObjectGraspsParams:
         check("gripper", isinstance(self.gripper, str) and bool(self.gripper),
               "be a gripper name or the path of a gripper file", self.gripper)
         load_gripper(self.gripper)  # unknown name: lists the bundled ones; bad file: names it and what is wrong
-        check("protocol", self.protocol in PROTOCOLS,
-              f"be one of {', '.join(PROTOCOLS)} (the free-space protocols; 'table' needs a support)", self.protocol)
+        check_protocol("protocol", self.protocol, PROTOCOLS, " (the free-space protocols; 'table' needs a support)")
         check_choice("selection", self.selection, SELECTIONS)
         object.__setattr__(self, "target_grasps", check_int("target_grasps", self.target_grasps, low=1))
         for key in ("target_positives", "target_negatives"):
@@ -216,6 +216,6 @@ def default_tilt(gripper: GripperSpec) -> float:
 def protocol_opening(gripper: GripperSpec, lift: LiftParams) -> float:
     """Pad separation (m) the jaws open to under a free-space protocol: its ``open_width`` (the gripper's
     ``max_width`` when null), clipped to the gripper's range (as :class:`graspgen.sim.lift.LiftSimulator` does)."""
-    settings = lift.acronym if lift.protocol == "acronym" else lift.graspgen
+    settings = lift.acronym if lift.protocol == "acronym" else lift.graspdatagen
     opening = gripper.max_width if settings.open_width is None else settings.open_width
     return float(np.clip(opening, gripper.min_width, gripper.max_width))

@@ -11,6 +11,7 @@ import yaml
 from graspgen.validation import check
 from pipeline.config import RunConfig, field_docs, load_config, to_dict, to_yaml
 from pipeline.errors import ConfigError
+from shared_utils.renames import RENAMED_FROM, RENAMED_VALUES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,3 +135,30 @@ def test_a_section_starts_from_its_fields_default_not_its_classs(tmp_path):
     assert cfg.table_top == Inner()
     cfg = load_config(Outer, write(tmp_path, {"free_space": {"mode": "above"}}), ["table_top.friction=2"])
     assert cfg.free_space == Inner(friction=1.0, mode="above") and cfg.table_top == Inner(friction=2.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Renamed:
+    mode: Literal["above", "any"] = dataclasses.field(default="above", metadata={RENAMED_VALUES: {"up": "above"}})
+    """Approach filter (``up`` was its old name for ``above``)."""
+    inner: Inner = dataclasses.field(default_factory=Inner, metadata={RENAMED_FROM: ("old_inner",)})
+    """A section once called ``old_inner``."""
+    count: int = dataclasses.field(default=1, metadata={RENAMED_FROM: ("n",)})
+    """A key once called ``n``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RenamedRoot:
+    s: Renamed = dataclasses.field(default_factory=Renamed)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("s.mode=up", "s.mode: mode 'up' was renamed 'above'"),
+    ("s.old_inner.friction=1.0", "s.old_inner: section 'old_inner' was renamed 'inner'"),
+    ("s.n=2", "s.n: key 'n' was renamed 'count'"),
+    ("s.nope=2", "s.nope: unknown key; valid keys: count, inner, mode"),
+])
+def test_a_renamed_key_or_value_is_answered_with_its_new_name(override, message):
+    with pytest.raises(ConfigError, match=f"^defaults: {message}$"):
+        load_config(RenamedRoot, None, [override])
+    assert load_config(RenamedRoot, None, ["s.mode=any", "s.count=3"]).s == Renamed(mode="any", count=3)

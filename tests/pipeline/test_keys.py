@@ -74,3 +74,36 @@ def test_a_field_flagged_key_omit_default_leaves_the_key_alone_at_its_default():
 
     assert canonical_json(Omitting()) == canonical_json(Before())
     assert canonical_json({"s": Omitting(added=4)}) == '{"s":{"a":1,"added":4}}'
+
+
+def test_a_renamed_field_or_value_is_hashed_as_it_was_named():
+    from shared_utils.keys import KEY_NAME, KEY_VALUES, key_view
+
+    @dataclasses.dataclass(frozen=True)
+    class Before:
+        mode: str = "old"
+        old_name: int = 1
+
+    @dataclasses.dataclass(frozen=True)
+    class After:
+        mode: str = dataclasses.field(default="new", metadata={KEY_VALUES: {"new": "old"}})
+        new_name: int = dataclasses.field(default=1, metadata={KEY_NAME: "old_name"})
+
+    assert canonical_json(After()) == canonical_json(Before())
+    assert key_view(After()) == dataclasses.asdict(Before())
+    assert canonical_json(After(mode="other")) == canonical_json(Before(mode="other"))
+
+
+def test_the_graspdatagen_rename_keeps_the_keys_and_draws():
+    """The protocol and its section were called ``graspgen`` when datasets were made: keys and seeds hash them so."""
+    from graspgen.sim.protocols import LiftParams
+    from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
+    from shared_utils.keys import key_view
+
+    lift = canonical_json(LiftParams(protocol="graspdatagen"))
+    assert '"graspgen":{' in lift and '"protocol":"graspgen"' in lift and "graspdatagen" not in lift
+    assert '"protocol":"graspgen"' in canonical_json(ObjectGraspsParams(protocol="graspdatagen"))
+    view = key_view(LiftParams(protocol="graspdatagen"))
+    old = LiftParams(protocol="graspdatagen").to_dict()
+    old["graspgen"], old["protocol"] = old.pop("graspdatagen"), "graspgen"
+    assert view == old  # gen evaluate's robustness seed (content_seed) hashes this view

@@ -25,7 +25,7 @@ from graspgen.io.contact_graspnet import (
     scene_file,
     tcp_from_cgn_grasp,
 )
-from graspgen.io.graspgen_format import split_of
+from graspgen.io.nvidia_graspgen import split_of
 
 # A 40 x 60 x 100 mm box standing on its base: mesh frame with the base at z = 0, so its vertex mean is (0, 0, 0.05).
 BOX = trimesh.creation.box((0.04, 0.06, 0.10), transform=trimesh.transformations.translation_matrix((0, 0, 0.05)))

@@ -1,5 +1,5 @@
 """Tests of the object-centric exports: ACRONYM files (graspgen/io/acronym_export.py: export_object_acronym) and
-GraspGen's dataset layout (graspgen/io/graspgen_format.py), on a dataset folder whose grasp sets were labelled by real
+GraspGen's dataset layout (graspgen/io/nvidia_graspgen.py), on a dataset folder whose grasp sets were labelled by real
 free-space rollouts (ACRONYM's protocol) of antipodal candidates."""
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from graspgen.io.acronym import FIRM_KEY, FLEX_MOTION, read_acronym
 from graspgen.io.acronym_export import export_object_acronym
 from graspgen.io.arrow import column_array, fixed_list
 from graspgen.io.files import write_h5, write_parquet
-from graspgen.io.graspgen_format import (
+from graspgen.io.nvidia_graspgen import (
     GRASPGEN_GRIPPER_NAMES,
     GraspGenObject,
     export_graspgen,

@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from graspgen.errors import SettingsError
 from graspgen.grippers import load_gripper
 from graspgen.sim import lift as L
 from graspgen.sim import protocols as P
@@ -212,25 +213,25 @@ def test_with_protocol_and_plain_data():
     params = P.LiftParams(grip_force=25.0).with_protocol("acronym")
     assert params.protocol == "acronym" and params.grip_force == 25.0
     assert params.to_dict()["acronym"]["shake_frequency"] == 4.0
-    assert P.PROTOCOLS == ("table", "acronym", "graspgen") and P.LiftParams().protocol == "table"
+    assert P.PROTOCOLS == ("table", "acronym", "graspdatagen") and P.LiftParams().protocol == "table"
     with pytest.raises(ValueError, match="protocol"):
         params.with_protocol("dexnet")
 
 
-# ------------------------------------------------------------------------------------------------- graspgen
+# ------------------------------------------------------------------------------------------------- graspdatagen
 
-GRASPGEN = P.LiftParams(protocol="graspgen")
+GRASPDATAGEN = P.LiftParams(protocol="graspdatagen")
 
 
-def _graspgen(objects=None, T=SIDE, params=GRASPGEN, gripper="panda") -> P.RolloutResult:
+def _graspdatagen(objects=None, T=SIDE, params=GRASPDATAGEN, gripper="panda") -> P.RolloutResult:
     return L.LiftSimulator(_world(objects, gripper=gripper), params).rollout(T, 2 * HALF, "obj/0_box")
 
 
 @pytest.mark.parametrize("gripper", ["panda", "robotiq_2f85"])
-def test_graspgen_box_grasped_across_its_faces_holds_through_the_tugs(gripper):
-    res = _graspgen([{"mass": 0.2, "friction": 0.5}], gripper=gripper)
+def test_graspdatagen_box_grasped_across_its_faces_holds_through_the_tugs(gripper):
+    res = _graspdatagen([{"mass": 0.2, "friction": 0.5}], gripper=gripper)
     assert (res.code, res.name, res.decided_in) == (5, "success", "end"), res
-    gg = GRASPGEN.graspgen
+    gg = GRASPDATAGEN.graspdatagen
     assert res.steps > 5 * round(gg.tug_time / 0.002)  # closing and all five tugs ran
     assert res.closed_width == pytest.approx(2 * HALF, abs=1e-3) and math.isnan(res.lift_gain)
     assert res.rel_translation < 1e-3 and res.motion_shaking_linear < 1e-3
@@ -243,54 +244,66 @@ def test_graspgen_box_grasped_across_its_faces_holds_through_the_tugs(gripper):
     np.testing.assert_allclose(dirs[1:, :2] / np.sin(gg.tug_tilt), [[0, 1], [0, -1], [1, 0], [-1, 0]], atol=1e-12)
 
 
-def test_graspgen_the_same_box_with_friction_near_zero_is_pulled_out():
-    res = _graspgen([{"mass": 0.2, "friction": 1e-3}])
+def test_graspdatagen_the_same_box_with_friction_near_zero_is_pulled_out():
+    res = _graspdatagen([{"mass": 0.2, "friction": 1e-3}])
     assert (res.code, res.name, res.decided_in) == (4, "slipped_during_lifting", "shaking"), res
-    assert res.steps < _graspgen([{"mass": 0.2, "friction": 0.5}]).steps  # stopped when it left the fingers
+    assert res.steps < _graspdatagen([{"mass": 0.2, "friction": 0.5}]).steps  # stopped when it left the fingers
     assert res.motion_shaking_linear > 0.02
     # Gravity is off: the grasp's orientation in the world does not matter, only the tugs (TCP frame) do.
-    top = _graspgen([{"mass": 0.2, "friction": 1e-3}], T=TOP)
+    top = _graspdatagen([{"mass": 0.2, "friction": 1e-3}], T=TOP)
     assert (top.code, top.decided_in, top.steps) == (res.code, res.decided_in, res.steps)
     # Without the tugs nothing pulls it: held.
-    idle = dataclasses.replace(GRASPGEN, graspgen=dataclasses.replace(GRASPGEN.graspgen, force_scale=0.0))
-    assert _graspgen([{"mass": 0.2, "friction": 1e-3}], params=idle).code == 5
+    idle = dataclasses.replace(GRASPDATAGEN, graspdatagen=dataclasses.replace(GRASPDATAGEN.graspdatagen,
+                                                                            force_scale=0.0))
+    assert _graspdatagen([{"mass": 0.2, "friction": 1e-3}], params=idle).code == 5
 
 
-def test_graspgen_one_finger_contact_fails():
+def test_graspdatagen_one_finger_contact_fails():
     # A small target next to a wider clutter box: the left jaw stops on the clutter, only the right one (+x) touches
     # the target.
     model = _world([{"half": (0.01, 0.01, 0.01), "xy": (0.015, 0.0), "mass": 0.1},
                     {"half": (0.01, 0.02, 0.02), "xy": (-0.025, 0.0), "mass": 0.1}])
-    res = L.LiftSimulator(model, GRASPGEN).rollout(SIDE, 0.02, "obj/0_box")
+    res = L.LiftSimulator(model, GRASPDATAGEN).rollout(SIDE, 0.02, "obj/0_box")
     assert (res.code, res.name, res.decided_in) == (3, "no_contact_established", "closing"), res
     assert set(res.contact_fingers.tolist()) == {1}
     assert math.isnan(res.motion_shaking_linear)
 
 
-def test_graspgen_same_inputs_give_bit_identical_results():
+def test_graspdatagen_same_inputs_give_bit_identical_results():
     objects = [{"mass": 0.2, "friction": 0.5}, {"xy": (0.3, 0.0), "friction": 1e-3, "mass": 0.2}]
-    sim = L.LiftSimulator(_world(objects), GRASPGEN)
+    sim = L.LiftSimulator(_world(objects), GRASPDATAGEN)
     T = _pose([0, 1, 0], [math.cos(0.1), 0, math.sin(0.1)], [0.002, 0, FLOAT_Z])
     first = sim.rollout(T, 0.05, "obj/0_box")
     assert first.success
     assert sim.rollout(_pose([0, 1, 0], [1, 0, 0], [0.3, 0, FLOAT_Z]), 0.05, "obj/1_box").code == 4  # pulled out
     sim.rollout(_pose([0, 1, 0], [1, 0, 0], [0, 0.04, FLOAT_Z]), 0.05, "obj/0_box")  # collision
     assert sim.rollout(T, 0.05, "obj/0_box") == first  # every field, bit for bit
-    assert L.LiftSimulator(_world(objects), GRASPGEN).rollout(T, 0.05, "obj/0_box") == first
+    assert L.LiftSimulator(_world(objects), GRASPDATAGEN).rollout(T, 0.05, "obj/0_box") == first
     assert sim.rollout(T, 0.01, "obj/0_box") == first  # the width is not used (the jaws open fully)
     assert not sim.data.xfrc_applied.any()  # no force left behind
 
 
-def test_graspgen_settings_are_checked_and_switched():
-    params = P.LiftParams().with_protocol("graspgen")
-    assert params.protocol == "graspgen" and params.to_dict()["graspgen"]["tug_time"] == 0.5
-    assert "graspgen" in P.PROTOCOLS
-    with pytest.raises(ValueError, match="graspgen"):
-        P.LiftParams(graspgen={"tug_time": 1.0})
+def test_graspdatagen_settings_are_checked_and_switched():
+    params = P.LiftParams().with_protocol("graspdatagen")
+    assert params.protocol == "graspdatagen" and params.to_dict()["graspdatagen"]["tug_time"] == 0.5
+    assert "graspdatagen" in P.PROTOCOLS
+    with pytest.raises(ValueError, match="graspdatagen"):
+        P.LiftParams(graspdatagen={"tug_time": 1.0})
     for change, name in (({"tug_time": 0.0}, "tug_time"), ({"force_scale": -1.0}, "force_scale"),
                          ({"grip_force": 0.0}, "grip_force"), ({"tug_tilt": 4.0}, "tug_tilt")):
         with pytest.raises(ValueError, match=name):
-            P.GraspGenParams(**change)
+            P.GraspDataGenParams(**change)
+
+
+def test_the_former_protocol_name_graspgen_names_the_new_one():
+    """GraspDataGen's protocol was called ``graspgen``; a call that still says so is told the new name."""
+    message = "protocol: protocol 'graspgen' was renamed 'graspdatagen'"
+    with pytest.raises(SettingsError, match=message):
+        P.LiftParams(protocol="graspgen")
+    with pytest.raises(SettingsError, match=message):
+        P.LiftParams().with_protocol("graspgen")
+    with pytest.raises(SettingsError, match=r"protocol: must be one of table, acronym, graspdatagen, got 'tug'"):
+        P.LiftParams(protocol="tug")
 
 
 # ------------------------------------------------------------------------------------------------- table

@@ -156,7 +156,7 @@ def test_a_model_feature_mjwarp_lacks_is_a_simulation_error_naming_it():
 
 
 @pytest.mark.warp
-@pytest.mark.parametrize("protocol", ["acronym", "graspgen"])
+@pytest.mark.parametrize("protocol", ["acronym", "graspdatagen"])
 def test_both_backends_label_analytic_grasps_alike_on_the_cpu_device(protocol):
     pytest.importorskip("mujoco_warp")
     pytest.importorskip("warp")

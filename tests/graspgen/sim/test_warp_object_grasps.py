@@ -4,12 +4,15 @@ labelled batch by batch on Warp's CPU device keeps the rows the CPU backend keep
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
 
 from graspgen.errors import SettingsError
 from graspgen.io.objects import ObjectRecord
+from graspgen.sim.protocols import PROTOCOL_KEYS
 from graspgen.sim.warp_backend import WarpParams
 from graspgen.workflows.object_grasps import label_object_grasps
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
@@ -24,14 +27,16 @@ VERSIONS = {"mujoco-warp": "4.0.0", "warp-lang": "1.19.0"}
 
 
 def _without_backend(section: ObjectGraspsParams) -> str:
-    """The section's canonical JSON as it was before ``backend`` and ``warp`` existed."""
-    plain = {f: getattr(section, f) for f in section.__dataclass_fields__ if f not in ("backend", "warp")}
+    """The section's canonical JSON as it was before ``backend`` and ``warp`` existed (a renamed protocol hashed as
+    it was named then, :data:`shared_utils.keys.KEY_VALUES`)."""
+    plain = {f.name: getattr(section, f.name) for f in dataclasses.fields(section) if f.name not in ("backend", "warp")}
+    plain["protocol"] = PROTOCOL_KEYS.get(section.protocol, section.protocol)
     return canonical_json(plain)
 
 
 def test_the_cpu_backend_keeps_the_object_grasps_keys():
     stage = stage_module.ObjectGraspsStage()
-    for sets in ([], ["object_grasps.protocol=graspgen"], ["object_grasps.warp.nworld=8"]):
+    for sets in ([], ["object_grasps.protocol=graspdatagen"], ["object_grasps.warp.nworld=8"]):
         config = load_config(Config, None, sets)
         assert canonical_json(stage.params(config)) == _without_backend(config.object_grasps)
     default = load_config(Config, None, []).object_grasps  # the dataset stage hashes the section itself

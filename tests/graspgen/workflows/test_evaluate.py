@@ -239,7 +239,7 @@ def test_evaluate_grasps_protocol_argument_and_the_table_default(acronym_file, t
     shaken = np.isin(table.column("decided_in").to_pylist(), ["shaking", "end"])
     motion = table.column("motion_shaking_linear").to_numpy()
     assert shaken.any() and np.isfinite(motion[shaken]).all() and np.isnan(motion[~shaken]).all()
-    for protocol in ("acronym", "graspgen"):
+    for protocol in ("acronym", "graspdatagen"):
         with pytest.raises(ValueError, match=f"'{protocol}' is a free-space protocol"):
             evaluate_grasps(mesh, 0.001, T, None, "panda", params, protocol=protocol, free_space=False)
 

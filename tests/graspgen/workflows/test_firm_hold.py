@@ -53,7 +53,7 @@ def _top_down(y: float = 0.0) -> np.ndarray:
 def _params(protocol: str, grip_force: float | None = None, **firm) -> P.LiftParams:
     if protocol == "table":  # free space: the object floats until the fingers hold it
         return P.LiftParams(protocol="table", gravity_until_closed=True, grip_force=grip_force or 70.0, **firm)
-    section = {"acronym": P.AcronymParams, "graspgen": P.GraspGenParams}[protocol](grip_force=grip_force)
+    section = {"acronym": P.AcronymParams, "graspdatagen": P.GraspDataGenParams}[protocol](grip_force=grip_force)
     return P.LiftParams(protocol=protocol, **{protocol: section}, **firm)
 
 
@@ -73,7 +73,7 @@ def _roll(obj, protocol: str, y: float = 0.0, grip_force: float | None = None, *
     return L.LiftSimulator(model, _params(protocol, grip_force, **firm)).rollout(_top_down(y), 0.04, "obj/0_box")
 
 
-@pytest.mark.parametrize("protocol", ["acronym", "graspgen", "table"])
+@pytest.mark.parametrize("protocol", ["acronym", "graspdatagen", "table"])
 def test_a_box_held_across_its_faces_is_firm(protocol):
     res = _roll(BOX, protocol)
     assert res.code == P.Outcome.SUCCESS and res.firm
@@ -128,7 +128,7 @@ def test_firm_tolerances_are_checked_and_named():
     assert P.LiftParams().firm_rotation == P.LiftParams().max_target_turn
 
 
-@pytest.mark.parametrize("protocol", ["acronym", "graspgen", "table"])
+@pytest.mark.parametrize("protocol", ["acronym", "graspdatagen", "table"])
 def test_the_firm_bookkeeping_changes_no_other_field(protocol, monkeypatch):
     """The still-held label and every field that existed before are bit-identical with the bookkeeping disabled:
     it only reads the state."""

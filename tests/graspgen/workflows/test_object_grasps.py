@@ -20,9 +20,11 @@ from graspgen.workflows.near_misses import near_miss_offsets
 from graspgen.workflows.object_grasps import SCHEMA, free_space_simulator, label_object_grasps
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams, default_overhang, default_tilt
 from pipeline.config import load_config
+from pipeline.errors import ConfigError
 from pipeline.plan import committed
 from pipeline.scheduler import run_pipeline
 from pipeline.store import stage_dir
+from stages.config import Config
 from stages.object_grasps import shortfall
 from stages.project import PROJECT
 from tests.shapes import top_down
@@ -176,10 +178,10 @@ def test_same_seed_same_bytes_other_seed_other_bytes(box, tmp_path):
 
 
 def test_the_graspgen_protocol_opens_fully_and_tugs(box):
-    table, meta = label_object_grasps(box, params(protocol="graspgen", target_positives=1, target_negatives=1,
+    table, meta = label_object_grasps(box, params(protocol="graspdatagen", target_positives=1, target_negatives=1,
                                                   max_candidates=32), np.random.default_rng(6))
-    assert meta["protocol"] == "graspgen" and meta["positives"] == 1 and len(table) == 2
-    assert set(table.column("protocol").to_pylist()) == {"graspgen"}
+    assert meta["protocol"] == "graspdatagen" and meta["positives"] == 1 and len(table) == 2
+    assert set(table.column("protocol").to_pylist()) == {"graspdatagen"}
     assert table.column("open_width").to_pylist() == [PANDA.max_width] * 2  # GraspDataGen's open limit
     held = table.filter(table.column("success"))
     assert held.column("decided_in").to_pylist() == ["end"]  # all five tugs ran
@@ -198,14 +200,27 @@ def test_robustness_copies_of_the_successes(box):
 
 
 def test_settings_take_only_free_space_protocols_and_the_whole_sphere():
-    with pytest.raises(SettingsError, match=r"protocol: must be one of acronym, graspgen .*got 'table'"):
+    with pytest.raises(SettingsError, match=r"protocol: must be one of acronym, graspdatagen .*got 'table'"):
         ObjectGraspsParams(protocol="table")
-    p = ObjectGraspsParams(protocol="graspgen")
-    assert p.lift.protocol == "graspgen" and p.sampler.approach == "any"
+    p = ObjectGraspsParams(protocol="graspdatagen")
+    assert p.lift.protocol == "graspdatagen" and p.sampler.approach == "any"
     with pytest.raises(SettingsError, match="gripper: unknown 'nope'"):
         ObjectGraspsParams(gripper="nope")
     with pytest.raises(SettingsError, match="near_miss_fraction"):
         ObjectGraspsParams(near_miss_fraction=1.0)
+
+
+@pytest.mark.parametrize("overrides, where", [
+    (["object_grasps.protocol=graspgen"], "object_grasps.protocol: protocol"),
+    (["object_grasps.lift.protocol=graspgen"], "object_grasps.lift.protocol: protocol"),
+    (["object_grasps.lift.graspgen.tug_time=1.0"], "object_grasps.lift.graspgen: section"),
+])
+def test_a_config_with_the_former_protocol_name_is_told_the_new_one(overrides, where):
+    """GraspDataGen's protocol and its section were called ``graspgen``: users' configs are told the new name."""
+    with pytest.raises(ConfigError, match=f"{where} 'graspgen' was renamed 'graspdatagen'"):
+        load_config(Config, None, overrides)
+    with pytest.raises(SettingsError, match="protocol: protocol 'graspgen' was renamed 'graspdatagen'"):
+        ObjectGraspsParams(protocol="graspgen")
 
 
 # ------------------------------------------------------------------------------------------------ the stage
