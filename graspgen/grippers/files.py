@@ -22,7 +22,7 @@ from graspgen.grippers.shapes import Box, Linkage, Mesh, Shape, bounds_of, short
 from graspgen.grippers.spec import GripperSpec
 from graspgen.validation import check, check_choice, check_number, check_vector
 
-__all__ = ["GRIPPER_FILE_SUFFIXES", "gripper_from_dict", "read_gripper", "write_gripper"]
+__all__ = ["GRIPPER_FILE_SUFFIXES", "gripper_from_dict", "read_gripper", "read_mesh_file", "write_gripper"]
 
 #: A mesh piece whose convex hull is this much larger than the piece is refused as not convex (MuJoCo would
 #: collide its hull).
@@ -35,16 +35,24 @@ _FILE_DEFAULTS = {"min_width": 0.0, "pad_friction": (1.0, 0.005, 0.0001)}
 _FRAMES = ("tcp", "base")
 
 
-def _mesh_pieces(path: Path, scale: float, where: str) -> list[np.ndarray]:
-    """Vertices of the convex hull of each connected component of the mesh file ``path`` (times ``scale``)."""
+def read_mesh_file(path: Path, where: str):
+    """The ``trimesh.Trimesh`` of a gripper's mesh file; SettingsError naming ``where`` and the file when it is
+    missing or unreadable."""
     import trimesh
 
     if not path.is_file():
         raise SettingsError(f"{where}: mesh file {path} not found")
     try:
-        mesh = trimesh.load(path, force="mesh")
+        return trimesh.load(path, force="mesh")
     except Exception as exc:  # noqa: BLE001 - trimesh raises many types for unreadable files
         raise SettingsError(f"{where}: cannot read mesh file {path} ({type(exc).__name__}: {exc})") from None
+
+
+def _mesh_pieces(path: Path, scale: float, where: str) -> list[np.ndarray]:
+    """Vertices of the convex hull of each connected component of the mesh file ``path`` (times ``scale``)."""
+    import trimesh
+
+    mesh = read_mesh_file(path, where)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise SettingsError(f"{where}: mesh file {path} holds no triangles")
     pieces = []

@@ -21,6 +21,7 @@ import numpy as np
 import trimesh
 
 from graspgen.errors import SettingsError
+from graspgen.grippers.files import read_mesh_file
 
 __all__ = ["Geom", "Joint", "Link", "HandTree", "read_urdf", "rpy_matrix", "joint_motion"]
 
@@ -209,12 +210,7 @@ def _geometry(elem: ET.Element, urdf: Path, where: str) -> tuple[trimesh.Trimesh
         return trimesh.creation.icosphere(subdivisions=2, radius=float(shape.get("radius"))), None, True, ""
     if tag == "mesh":
         path = _mesh_file(shape.get("filename", ""), urdf)
-        if not path.is_file():
-            raise SettingsError(f"{where}: mesh file {path} not found")
-        try:
-            mesh = trimesh.load(path, force="mesh")
-        except Exception as exc:  # noqa: BLE001 - trimesh raises many types for unreadable files
-            raise SettingsError(f"{where}: cannot read mesh file {path} ({type(exc).__name__}: {exc})") from None
+        mesh = read_mesh_file(path, where)
         scale = [float(v) for v in shape.get("scale", "1 1 1").split()]
         mesh.apply_transform(np.diag([*scale, 1.0]))
         return mesh, None, False, str(path)
