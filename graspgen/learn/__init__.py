@@ -1,8 +1,9 @@
 """Can a network learn these labels? A small grasp-success evaluator trained on labelled grasps, measured on
 objects it never saw.
 
-* :mod:`graspgen.learn.features`: per grasp, the object's surface points nearest the closing region in the TCP
-  frame, with an inside-the-closing-volume flag, and the width (numpy only).
+* :mod:`graspgen.learn.features`: per grasp, the object's surface points nearest the closing region and nearest
+  the hand's body in the TCP frame, each flagged inside the closing volume / inside the hand, and the width (numpy
+  only).
 * :mod:`graspgen.learn.sources`: labelled grasp sets per object (ACRONYM files with FleX or our simulator's
   labels, a dataset folder) and the split by object (numpy only).
 * :mod:`graspgen.learn.report`: ROC-AUC, average precision, per-object AUC, top-k (numpy only).

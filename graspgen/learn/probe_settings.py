@@ -40,7 +40,8 @@ class ProbeParams:
     learning_rate: float = 1e-3
     """Adam's learning rate."""
     num_points: int = 64
-    """Surface points per grasp: those nearest the closing region, in the TCP frame (the network's input)."""
+    """Surface points per grasp nearest the closing region, in the TCP frame (the network's input; the 32 points
+    nearest the hand's body come beside them, :class:`graspgen.learn.features.FeatureParams`)."""
     num_surface_points: int = 2048
     """Points sampled on each object's surface (area-weighted) that the per-grasp points are chosen from."""
     seed: int = 0
