@@ -33,7 +33,7 @@ dataset: $(STAMP) ## Run every stage of CONFIG into OUT (finished work is skippe
 test: $(STAMP) ## Run the test suite
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP) ## Run the throughput benchmarks (writes bench/results*.json)
+bench: $(STAMP) ## Run the throughput benchmarks (writes bench/results*.json; experiments: studies/)
 	@for b in bench/bench_*.py; do m=bench.$$(basename $$b .py); echo "== $$m"; $(BIN)/python -m $$m || exit 1; done
 
 repro: $(STAMP) ## Check byte-reproducibility: jobs 1 vs 2, and kill -9 then resume

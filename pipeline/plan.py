@@ -23,9 +23,8 @@ from pipeline.keys import key_parts, params_digest, seed_key, sha256_file, sha25
 from pipeline.stage import Stage, Task, Upstream
 from pipeline.store import Entry, Manifest, stage_dir
 
-# A manifest line is ~2.6-6 kB of JSON, most of it the key's parts (one code digest per source file, the same for
-# every task of a stage) and the metadata. The engine holds every entry of every stage it plans (~5,000 at 1,000
-# objects), so it holds them compact (Manifest.entries(compact=True)): 26 -> 7 MB at 1,000 objects.
+# The engine holds every entry of every stage it plans, so it holds them compact (Manifest.entries(compact=True)):
+# most of a manifest line is key parts and metadata (docs/decisions/2026-12-03-engine-at-scale.md).
 
 
 def read_entries(manifest: Manifest) -> dict[str, Entry]:

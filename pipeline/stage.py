@@ -78,10 +78,9 @@ class Upstream:
     def __sizeof__(self) -> int:
         """Bytes held, estimated as :data:`ENTRY_BYTES` per entry.
 
-        Why: dask's ``sizeof`` reads this, and joblib's dask backend scatters an argument to the cluster once per
-        call (and ships every task a reference to it) only when that says over 1 kB. Python's default counts the
-        bare object (56 bytes), so one stage's view, 0.5-2 MB pickled at 1,000 objects, was pickled into every
-        task and passed through the ``dask scheduler``: ~29 ms of its CPU per task instead of ~0.7 ms."""
+        Why: dask's ``sizeof`` reads this, and joblib's dask backend scatters an argument to the cluster once
+        (instead of pickling it into every task) only when that says over 1 kB
+        (docs/decisions/2026-12-03-engine-at-scale.md)."""
         return object.__sizeof__(self) + ENTRY_BYTES * sum(len(by_id) for by_id in self._entries.values())
 
     def warnings(self, stage: str) -> list[str]:

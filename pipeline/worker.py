@@ -74,21 +74,11 @@ def resident_bytes() -> int | None:
 
 
 def return_freed_memory() -> bool:
-    """Give the heap pages freed since back to the OS, and collect garbage when the worker has grown; False where
-    the C library cannot trim.
+    """Give the heap pages freed since back to the OS, and collect garbage when the worker has grown more than
+    :data:`GC_MARGIN` since its last collection (and after its first task); False where the C library cannot trim.
 
-    Why: glibc keeps freed blocks in its heap, so a worker's resident size climbs to the highest peak any of its
-    tasks reached and stays there. loky reads that as a leak (300 MB above the worker's size after its first task),
-    restarts the worker and warns "A worker stopped while some jobs were given to the executor ... memory leak"
-    (seen in ``make dataset``, in the robustness stage). Measured on ten of the default dataset's robustness tasks
-    in one process: 290-390 MB resident after each with ``gc.collect()`` alone, 255-264 MB after this.
-
-    The trim costs microseconds; a full ``gc.collect()`` costs 40-130 ms in a worker that imported the grasp
-    library, so it runs after the first task and then only when the worker has grown more than :data:`GC_MARGIN`
-    since its last collection (Python's own generational collection still runs as usual). The bar is measured
-    from the last collection, not from the first task: a worker's live memory rises once it has run tasks of
-    several stages (their modules, models, caches), and a bar fixed at its first size then collected after every
-    task without freeing anything (py-spy, 100 procedural objects: 9 % of the tasks' CPU went to it)."""
+    Why: glibc keeps freed blocks, so a worker's resident size stays at its tasks' highest peak, which loky reads
+    as a leak and answers by restarting the worker (docs/decisions/2026-11-29-worker-memory.md)."""
     global _collect_above
     trimmed = _trim_heap()
     rss = resident_bytes()

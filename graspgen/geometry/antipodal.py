@@ -150,17 +150,13 @@ class AntipodalParams:
     Embree's float32 resolution at object scale (~1e-8 m for a 0.1 m object), far below any wall thickness. Widths
     below it are rejected as too small."""
     num_depths: int = 3
-    """Grasp depths per oriented contact pair (step 7 of the module docstring): the TCP is set back along the
+    """Grasp depths per oriented contact pair (>= 1; step 7 of the module docstring): the TCP is set back along the
     approach axis by ``num_depths`` offsets evenly spaced in ``[0, pad_length / 2 - depth_margin]`` (1: only 0, the
-    TCP at the contacts' midpoint). Default 3: for the 2F-85 (37.5 mm pads) 0, 6.9 and 13.75 mm, i.e. the finger
-    tips reach 18.75, 11.9 and 5 mm past the contacts; every depth keeps both contacts on the pad faces. Measured
-    (smoke config, 3 scenes x 10 seeds, 1440 grasps, paired): 1 -> 3 depths raises the pre-filter's free share from
-    11.8 % to 19.2 % (ground collisions 50.5 % -> 44.5 %) and successes from 168 to 265; 2, 4 or 5 depths give the
-    same within noise. Per depth, the free share grows from 14 % (d = 0) to 35 % (contacts at the tips)."""
+    TCP at the contacts' midpoint). For the 2F-85 (37.5 mm pads) 0, 6.9 and 13.75 mm. Why 3: more free candidates
+    than 1, no gain from more (docs/decisions/2026-11-22-grasp-depths.md)."""
     depth_margin: float = 0.005
     """Smallest distance (m, >= 0) between the contact line and the pad tips at the largest depth, so the pads
-    still cover the contact with some face to spare: measured, free grasps succeed ~95 % of the time up to 9 mm
-    depth, 92-95 % at 14 mm (5 mm margin) and 89-92 % with the contacts on the pad tips (0 margin)."""
+    still cover the contact with some face to spare (docs/decisions/2026-11-22-grasp-depths.md)."""
 
     def __post_init__(self) -> None:
         check_positive_int("num_surface_points", self.num_surface_points)

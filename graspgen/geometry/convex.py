@@ -96,20 +96,16 @@ class CoacdParams:
     area, so fewer saves little)."""
 
     mcts_iterations: int = 10
-    """Monte-Carlo tree search iterations per cut: CoACD's search budget. 10 of ``mcts_nodes`` 5 since issue 24's
-    part merge (20 of 10 before, 50 of 20 at first): with CoACD's own merge off, the cost is the cuts themselves,
-    and on ../shared/learn's meshes a smaller search makes somewhat more pieces of about the same slack, at about
-    60 % of the time (a bowl: 136 pieces, slack p95 3.28 mm, 11.0 s -> 152 pieces, 3.28 mm, 6.3 s; a mug: 48,
-    2.28 mm, 2.7 s -> 61, 1.94 mm, 2.3 s)."""
+    """Monte-Carlo tree search iterations per cut (CoACD's search budget, >= 1). Why 10 of ``mcts_nodes`` 5: about
+    the same slack as a larger search in less time (docs/decisions/2026-12-03-coacd-decomposition.md)."""
 
     mcts_depth: int = 3
-    """Maximum depth of the Monte-Carlo tree search (cuts looked ahead). At 2, on ../shared/learn's meshes, the
-    total time did not fall and the worst rose: its cuts leave more slack, so more meshes are refined
-    (docs/cluster.md)."""
+    """Maximum depth of the Monte-Carlo tree search (cuts looked ahead, >= 1). Why not 2: its cuts leave more slack,
+    so more meshes are refined (docs/decisions/2026-12-03-coacd-decomposition.md)."""
 
     mcts_nodes: int = 5
-    """Child nodes expanded per Monte-Carlo tree search node (candidate cutting planes); 5 since issue 24's part
-    merge, with ``mcts_iterations``."""
+    """Child nodes expanded per Monte-Carlo tree search node (candidate cutting planes, >= 1); see
+    ``mcts_iterations``."""
 
     seed: int = 0
     """CoACD's own random seed; the decomposition is a pure function of mesh, settings and this seed."""
@@ -125,16 +121,15 @@ class CoacdParams:
     ``max_convex_hull`` pieces, else at half (a cut at a quarter makes 5-7 times the pieces, at half 2-3.5 times; more
     pieces than that are merged back to the cap, which bridges again what the cut separated, at the cost of the
     cut). With more pieces, they are merged again. Each try is merged down to four times ``max_convex_hull``, and the
-    parts of lowest slack are kept. 0 turns this off; 0.1 before issue 24's part merge, whose parts bridge less
-    volume for the same slack."""
+    parts of lowest slack are kept. Fraction >= 0; 0 turns this off
+    (docs/decisions/2026-12-03-coacd-decomposition.md)."""
 
     preprocess_mode: str = "unless_watertight"
     """CoACD's manifold pre-processing (rebuilding the mesh as a level set on a voxel grid of
-    ``preprocess_resolution`` cells, which dilates it by about half a cell and, measured on ShapeNet mugs and
-    bottles, costs 75-95 % of the decomposition's time): ``"unless_watertight"`` skips it for a mesh that is
-    watertight with consistent winding after repair (already a closed 2-manifold, as CoACD's authors advise
-    for such input) and leaves it to CoACD's own check (``"auto"``) otherwise; ``"auto"``, ``"on"`` and
-    ``"off"`` are passed to CoACD as they are."""
+    ``preprocess_resolution`` cells, which dilates it by about half a cell and costs most of the decomposition's
+    time): ``"unless_watertight"`` skips it for a mesh that is watertight with consistent winding after repair
+    (already a closed 2-manifold) and leaves it to CoACD's own check (``"auto"``) otherwise; ``"auto"``, ``"on"``
+    and ``"off"`` are passed to CoACD as they are. Raises :class:`SettingsError` for another value."""
 
     slack_p95: float = 1e-3
     """Hull-slack criterion in m (95th percentile of how far the parts' union stands out of the surface,
@@ -248,8 +243,8 @@ def _refined(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, closed: bool, pieces:
                 recut = _merged(finer, cap, params)
                 tries[f"cut at 1/{divisor}"] = (recut, _slack_p95(mesh, recut, params))
     elif len(pieces) > params.max_convex_hull:
-        # Only where no finer cut is affordable: on ../shared/learn's meshes the finer cut had the lower slack
-        # every time both were tried (25 of 25).
+        # Only where no finer cut is affordable: a finer cut leaves less slack
+        # (docs/decisions/2026-12-03-coacd-decomposition.md).
         remerged = _merged(pieces, cap, params)
         tries["merged again"] = (remerged, _slack_p95(mesh, remerged, params))
     best = min(tries, key=lambda name: tries[name][1])  # the first of equals: dicts keep their order

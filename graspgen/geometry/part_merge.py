@@ -1,16 +1,15 @@
 """Merging convex parts by how far the merged hull bridges beyond them (the last step of the convex decomposition).
 
-CoACD cuts a mesh into convex pieces and then, to stay under ``max_convex_hull``, merges them again by a concavity
-cost it computes for every pair of pieces: on ShapeNet bowls and mugs that all-pairs merge is about 40 % of CoACD's
-time, and the pairs it picks are no better for a gripper than the ones chosen here (``bench/bench_prep.py``). Here
-only pieces whose bounding boxes touch are candidates, and a pair is judged by its *bridge depth*: how far the convex
+CoACD's own merge (a concavity cost for every pair of pieces) is turned off: it took much of CoACD's time and its
+pairs were no better for a gripper (docs/decisions/2026-12-03-coacd-decomposition.md). Here only pieces whose
+bounding boxes touch are candidates, and a pair is judged by its *bridge depth*: how far the convex
 hull of the two stands outside the pieces they were made of, the same quantity (in m) as the hull slack the
 decomposition is judged by (:mod:`graspgen.geometry.slack`), since the pieces themselves follow the surface.
 Pairs are merged shallowest first while the depth is within ``free_depth`` (merging them costs the gripper nothing)
 or while more than ``max_parts`` parts are left. A merged part keeps its pieces' planes (each once) and which piece
 each of its corners came from: a probe of a pair's hull is measured first against its face's corners' pieces only, an
-upper bound on its distance, and against every piece only while that bound could be the deepest (a merge of a fine
-cut's pieces down to a few parts was spent measuring every probe against every piece: 8.7 -> 2.1 s on a bottle's 145).
+upper bound on its distance, and against every piece only while that bound could be the deepest (the same result,
+several times faster on a fine cut's pieces).
 """
 
 from __future__ import annotations

@@ -163,10 +163,9 @@ class GroupedParquetWriter:
 
 
 def dictionary_columns(schema: pa.Schema) -> list[str]:
-    """The columns written dictionary-encoded: the string and binary ones (ids, names, keys), whose few values
-    repeat. Numbers are written plain: a pose or contact value rarely repeats, so a dictionary for it is built to
-    Parquet's size limit and then dropped, which held ~50 MB per row group of 15,000 object grasps and made the
-    file ~20 % larger."""
+    """The names of ``schema``'s columns written dictionary-encoded: the string and binary ones (ids, names, keys),
+    whose few values repeat. Numbers are written plain: a dictionary for values that rarely repeat costs memory
+    and size (docs/decisions/2026-12-03-engine-at-scale.md)."""
     text = (pa.types.is_string, pa.types.is_large_string, pa.types.is_binary, pa.types.is_large_binary,
             pa.types.is_dictionary)
     return [f.name for f in schema if any(is_(f.type) for is_ in text)]

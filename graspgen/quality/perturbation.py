@@ -76,15 +76,12 @@ class RobustnessParams:
     objects of one kind spreads by tens of percent (a full or half-empty bottle, wood versus plastic). Dex-Net 2.0
     perturbs no mass (its metric is quasi-static); 0 turns it off."""
     com_sigma: float = 0.005
-    """Standard deviation (m) of the target's centre-of-mass offset along each mesh axis. The record's centre of
-    mass assumes uniform density; contents (liquid, a battery) move it by millimetres to a centimetre on
-    hand-sized objects, so about 5 mm is the physical size of the error (Dex-Net's object random variable has such
-    a term, ``sigma_obj_com`` in ``dexnet/grasping/random_variables.py``). The copy's object stays in its observed
-    resting pose, so the offset is made consistent with it (:func:`graspgen.quality.resting.resting_com_offset`): its
-    horizontal part is pulled back inside the support polygon (a cylinder on its side keeps only the shift along its
-    axis and the vertical). Without that a shifted centre sets the object moving on its own (a cylinder on its side
-    rolls) and the rules label the copy 1 although the hand never touched it (measured on ``configs/smoke.yaml`` at
-    5 mm before the projection: the cylinder's copies went from 1-4 to 16 of 20 code 1). 0 turns it off."""
+    """Standard deviation (m, >= 0) of the target's centre-of-mass offset along each mesh axis; 0 turns it off.
+    Contents (liquid, a battery) move a hand-sized object's centre by millimetres to a centimetre (Dex-Net's
+    ``sigma_obj_com``). The copy's object stays in its observed resting pose, so the offset's horizontal part is
+    pulled back inside the support polygon (:func:`graspgen.quality.resting.resting_com_offset`). Why: a free
+    offset sets the object moving on its own and mislabels the copy
+    (docs/decisions/2026-11-29-perturbation-com-projection.md)."""
     friction_sigma: float = 0.1
     """Standard deviation of the target's sliding friction coefficient (dimensionless, absolute), truncated to
     ``> 0``: the copy's coefficient is drawn from ``N(mu, friction_sigma^2)`` restricted to ``(0, inf)``. 0.1 is

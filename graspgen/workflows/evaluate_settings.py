@@ -13,20 +13,10 @@ __all__ = ["CHEAP_COACD", "EvaluateParams"]
 
 CHEAP_COACD = CoacdParams(threshold=0.05, max_convex_hull=32, preprocess_resolution=60, resolution=1000,
                           mcts_iterations=10, mcts_depth=3, mcts_nodes=5, refine_excess=0.01, free_merge_depth=2.5e-4)
-"""CoACD settings for one-off evaluation (every CoACD field given, so a change to :class:`CoacdParams`' defaults, the
-objects stage's, leaves ``gen evaluate``'s parts and the calibration labels as they are), chosen by hull slack
-(``studies/hull_slack.py``): how far the parts MuJoCo collides stand out of the true surface, which ACRONYM checks the
-open hand against. Criterion, fixed before any agreement with FleX was looked at: slack p95 <= 1 mm (half the fingers' 2
-mm touch allowance, :data:`graspgen.sim.prefilter.TARGET_TOUCH_DEPTH`, which is meant in the object: slack eats it; the
-palm has none) on every calibration object, within 600 s of CoACD on one core each; none meets it on all six (the 0.35 m
-hat: 1.64 mm at best), so the tightest worst case in time. p95 / max slack, mm, now (before: threshold 0.1, 8 hulls,
-preprocess resolution 30): example mug 0.67 / 2.07 (2.34 / 3.55), mug 187859 0.36 / 1.61 (2.08 / 4.40), bowl 4b93a8 0.64
-/ 1.12 (2.16 / 3.27), knife 0.40 / 1.09 (1.01 / 2.19), hat 1.64 / 2.82 (3.72 / 6.31), bottle 3ae3a9 1.28 / 2.33 (the
-same). Cost: 571 s of one core for the six (before: 54 s), 389 s of it the example mug, whose self-intersecting mesh
-CoACD first rebuilds on a grid of that many cells (at 30, with the same threshold: p95 1.20 mm); cached after the first
-run. Since issue 24's part merge (:mod:`graspgen.geometry.part_merge`; CoACD's own merge off, the refinement's finer cut
-only where CoACD made few enough pieces) the search budget is the objects stage's, 10 iterations of 5 nodes (30 of 20
-before), and ``refine_excess`` 0.01 is given too; the calibration agreement before and after is in docs/cluster.md."""
+"""CoACD settings of ``gen evaluate`` (threshold 0.05, 32 parts, preprocess resolution 60, the objects stage's search
+and refinement). Every field is given, so a change to :class:`CoacdParams`' defaults (the objects stage's) leaves
+``gen evaluate``'s parts and labels as they are. Why these: the tightest hull slack (p95 <= 1 mm asked, on every
+calibration object) within 600 s of CoACD per object (docs/decisions/2026-11-22-evaluate-coacd-settings.md)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """How far the CPU backend's labels hold when only the numerics change: the agreement a float32 backend can expect.
 
-On the ACRONYM files and grasps of a ``bench_warp`` agreement run (``--warp-json``, default
-``bench/results_bench_warp_agreement_cpu_device.json``: the same files, the same evenly spaced grasps), each file's
+On the ACRONYM files and grasps of a ``studies.warp_agreement`` run (``--warp-json``, default
+``studies/results_warp_agreement_cpu_device.json``: the same files, the same evenly spaced grasps), each file's
 grasps are rolled out by the CPU backend four times, in one process on one core:
 
 * as the pipeline does (``opt.tolerance`` as the model has it, 1e-8);
@@ -11,16 +11,18 @@ grasps are rolled out by the CPU backend four times, in one process on one core:
 * with each grasp moved by ``--nudge`` (10 um by default) in a direction drawn per grasp from a generator seeded by
   the file's name: far below anything a grasp's pose means, so a label that changes is not decided by the physics.
 
-Per protocol, pooled over files: the success-label agreement and Cohen's kappa of each variant against the first (the
-same confusion counts as ``bench_warp``), outcome-code changes, per category; beside them the warp backend's agreement
-on the same grasps as that run recorded it, and where its disagreements lie: how many are on *fragile* grasps (whose
-CPU label changes under any of the variants) against the fragile share of all grasps. A label that flips when the
-solver stops at 1e-6 instead of 1e-8 is not decided by the physics to better than that: those grasps bound what a
-float32 engine can agree on.
+Per protocol, pooled over files: the success-label agreement and Cohen's kappa of each variant against the first
+(the same confusion counts as ``studies.warp_agreement``), outcome-code changes, per category; beside them the warp
+backend's agreement on the same grasps as that run recorded it, and where its disagreements lie: how many are on
+*fragile* grasps (whose CPU label changes under any of the variants) against the fragile share of all grasps. A
+label that flips when the solver stops at 1e-6 instead of 1e-8 is not decided by the physics to better than that:
+those grasps bound what a float32 engine can agree on.
 (``studies/label_stability.py`` asks the other question: do the pipeline's labels survive a finer timestep.)
 
-Run: ``python -m bench.bench_label_stability [--protocols acronym] [--limit N] [--out FILE]``; the JSON is rewritten
-after every file and ``--resume`` adds to it. ``--warp-device cpu`` rolls the warp backend out in the same process
+Run: ``python -m studies.label_stability_numerics [--protocols acronym] [--limit N] [--out FILE]``; writes
+``studies/results_label_stability_numerics.json`` (gitignored; the checked-in run with ``--warp-device cpu``:
+``studies/results_label_stability_numerics_cpu_device.json``). The JSON is rewritten after every file and
+``--resume`` adds to it. ``--warp-device cpu`` rolls the warp backend out in the same process
 (its codes then come from the same code and parts as the CPU's, not from the agreement run's JSON).
 """
 
@@ -37,12 +39,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench.bench_warp import LEARN, ROOT, kappa, record, run_warp, worlds  # noqa: E402
+from bench.bench_warp import LEARN, ROOT, run_warp, worlds  # noqa: E402
 from graspgen.sim.warp_backend import WarpParams  # noqa: E402
+from studies.warp_agreement import kappa, record  # noqa: E402
 
 CALIBRATION = ROOT.parent / "shared" / "calibration" / "acronym_more"
-WARP_JSON = ROOT / "bench" / "results_bench_warp_agreement_cpu_device.json"
-RESULTS = ROOT / "bench" / "results_label_stability.json"
+WARP_JSON = ROOT / "studies" / "results_warp_agreement_cpu_device.json"
+RESULTS = ROOT / "studies" / "results_label_stability_numerics.json"
 VARIANTS = ("tolerance", "float32_inputs", "nudge")
 
 
