@@ -13,7 +13,8 @@ from graspgen.geometry.antipodal import AntipodalParams
 from graspgen.grippers import ACRONYM_GRIPPER, GripperSpec, load_gripper
 from graspgen.quality.epsilon import EpsilonParams
 from graspgen.sim.protocols import PROTOCOL_KEYS, LiftParams, Outcome, RolloutResult, check_protocol
-from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams, check_backend
+from graspgen.sim.simulator import check_backend
+from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
 from shared_utils.keys import KEY_VALUES
 
