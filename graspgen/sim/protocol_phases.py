@@ -12,9 +12,9 @@ Adding a protocol: its settings in :class:`graspgen.sim.protocols.LiftParams` (a
 whose frame places, closes and judges, with :meth:`~FreeSpaceProtocol.disturb` its own) and one entry in
 :data:`ROLLOUT_PROTOCOLS`.
 
-Each phase method takes the simulator (``sim``, a :class:`~graspgen.sim.lift.LiftSimulator`, typed as its state
-:class:`~graspgen.sim.lift_state.LiftState`) and works on it; a rule that fires raises :class:`Decided`. The MuJoCo
-calls and their order are the simulator's own.
+Each phase method takes the simulator (``sim``, a :class:`~graspgen.sim.lift.LiftSimulator`; not imported here, so
+that the model set-up and the motion profiles below it can ask a protocol too) and works on its state; a rule that
+fires raises :class:`Decided`. The MuJoCo calls and their order are the simulator's own.
 """
 
 from __future__ import annotations
@@ -23,14 +23,13 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from graspgen.geometry.poses import quat_mul, rotation_angle
 from graspgen.grippers import jaw_opening
 from graspgen.sim.lift_rules import Drift, both_jaws, jaws_on, no_contacts
-from graspgen.sim.lift_state import LiftState
 from graspgen.sim.protocols import PROTOCOLS, AcronymParams, GraspDataGenParams, LiftParams, Outcome, RolloutResult
 from graspgen.validation import check_choice
 
@@ -88,7 +87,7 @@ class RolloutProtocol:
         """``lift`` without the disturbance after closing (no shake), where the protocol has one to switch off."""
         return lift
 
-    def rollout(self, sim: LiftState, pos: np.ndarray, quat: np.ndarray, R: np.ndarray, width: float,
+    def rollout(self, sim: Any, pos: np.ndarray, quat: np.ndarray, R: np.ndarray, width: float,
                 target: int, roles: np.ndarray, index: int, observer) -> RolloutResult:
         """Run the phases on ``sim`` for the grasp at ``pos (3,)``, ``quat (4,)``, ``R (3, 3)`` of pad separation
         ``width`` (m) on body ``target`` (``roles``, ``index``: :meth:`LiftSimulator.target_roles`)."""
@@ -110,7 +109,7 @@ class TableProtocol(RolloutProtocol):
         return dataclasses.replace(lift, shake=False)
 
     @staticmethod
-    def approach_check(sim: LiftState, roles: np.ndarray, target: int, index: int):
+    def approach_check(sim: Any, roles: np.ndarray, target: int, index: int):
         """The rule of placement and approach, as a ``check(phase)`` callback; the objects' pose at placement is
         read now."""
         objects = sim.index.objects
@@ -128,7 +127,7 @@ class TableProtocol(RolloutProtocol):
 
         return check_approach
 
-    def place(self, sim: LiftState, pos, quat, z_axis, width, target, roles, index, observer) -> None:
+    def place(self, sim: Any, pos, quat, z_axis, width, target, roles, index, observer) -> None:
         """Placement at the pre-grasp pose, jaws open to ``width + width_margin``, then the approach."""
         p, s = sim.params, sim.schedule
         open_width = float(jaw_opening(width, p.width_margin, sim.min_width, sim.max_width))
@@ -141,7 +140,7 @@ class TableProtocol(RolloutProtocol):
         sim._move(pre + s.approach[:, None] * z_axis, None, "approach", check_approach, observer)
 
     @staticmethod
-    def shake(sim: LiftState, pos: np.ndarray, quat: np.ndarray, check_slip, observer) -> None:
+    def shake(sim: Any, pos: np.ndarray, quat: np.ndarray, check_slip, observer) -> None:
         """The shake at the top of the lift: along world z, then about the TCP x axis."""
         s = sim.schedule
         top = pos + s.lift_offsets[-1]
@@ -210,7 +209,7 @@ class FreeSpaceProtocol(RolloutProtocol):
     def settings(self, lift: LiftParams) -> AcronymParams | GraspDataGenParams:
         return getattr(lift, self.name)
 
-    def disturb(self, sim: LiftState, pos, quat, R, target, check_held, observer) -> None:
+    def disturb(self, sim: Any, pos, quat, R, target, check_held, observer) -> None:
         """The disturbance after closing; ``check_held(phase)`` at every check."""
         raise NotImplementedError
 
