@@ -125,7 +125,7 @@ def _label(console: Console, grasps: Path, gripper: str, output: Path, mesh_root
         table = evaluate_grasps(
             loaded.mesh_path, loaded.scale, loaded.T_tcp, loaded.widths, gripper, params, free_space=not support,
             jobs=jobs, cache_dir=cfg.run.cache_dir, robustness=noise, backend=backend,
-            warp=WarpParams(device=device, nworld=worlds) if backend == "warp" else None,
+            warp=WarpParams(device=device, nworld=worlds),
         )
     except (*USER_ERRORS, ValueError) as exc:
         fail(console, str(exc))

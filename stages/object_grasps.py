@@ -22,7 +22,8 @@ import numpy as np
 from graspgen.grippers import gripper_files
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
-from graspgen.sim.warp_backend import WarpParams, require_warp, warp_versions
+from graspgen.sim.simulator import backend_key
+from graspgen.sim.warp_backend import require_warp
 from graspgen.workflows.object_grasps import label_object_grasps
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
 from pipeline.config import FLATTEN
@@ -51,9 +52,8 @@ class ObjectGraspsStage(GraspStage):
 
     def params(self, config: Any) -> ObjectGraspsTaskParams:
         section: ObjectGraspsParams = config.object_grasps
-        if section.backend == "mujoco":
-            return ObjectGraspsTaskParams(dataclasses.replace(section, warp=WarpParams()))
-        return ObjectGraspsTaskParams(section, warp_versions())
+        warp, packages = backend_key(section.backend, section.warp)
+        return ObjectGraspsTaskParams(dataclasses.replace(section, warp=warp), packages)
 
     def check(self, params: ObjectGraspsTaskParams) -> None:
         """The ``warp`` backend needs its extra installed."""

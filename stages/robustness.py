@@ -67,7 +67,7 @@ class RobustnessStage(GraspStage):
 
         gripper = grasps.column("gripper")[0].as_py() if len(grasps) else "robotiq_2f85"
         scene, simulator = scene_simulator(upstream.path("scenes", task.id), load, gripper, params.lift)
-        table, meta = scene_robustness(grasps, rollouts, simulator, scene.object_names, scene.friction, records,
+        table, meta = scene_robustness(grasps, rollouts, simulator.cpu, scene.object_names, scene.friction, records,
                                        params, rng)
         write_parquet(out, table)
         return meta

@@ -22,7 +22,8 @@ import pyarrow.parquet as pq
 from graspgen.io.files import write_parquet
 from graspgen.io.objects import read_object
 from graspgen.sim.protocols import OUTCOME_NAMES
-from graspgen.sim.warp_backend import WarpParams, require_warp, warp_versions
+from graspgen.sim.simulator import backend_key
+from graspgen.sim.warp_backend import require_warp
 from graspgen.workflows.rollouts import RolloutsParams, roll_out_table, scene_simulator, warp_batch
 from pipeline.config import FLATTEN
 from pipeline.keys import KEY_OMIT_DEFAULT
@@ -50,9 +51,8 @@ class RolloutsStage(GraspStage):
 
     def params(self, config: Any) -> RolloutsTaskParams:
         section: RolloutsParams = config.rollouts
-        if section.backend == "mujoco":
-            return RolloutsTaskParams(dataclasses.replace(section, warp=WarpParams()))
-        return RolloutsTaskParams(section, warp_versions())
+        warp, packages = backend_key(section.backend, section.warp)
+        return RolloutsTaskParams(dataclasses.replace(section, warp=warp), packages)
 
     def check(self, params: RolloutsTaskParams) -> None:
         """The ``warp`` backend needs its extra installed."""
@@ -86,6 +86,7 @@ class RolloutsStage(GraspStage):
             lambda name: read_object(upstream.path("objects", name)),
             grasps.column("gripper")[0].as_py() if len(grasps) else "robotiq_2f85",
             settings.lift,
+            settings.backend,
             warp_batch(grasps, settings),
         )
         table = roll_out_table(scene, simulator, grasps, settings)
@@ -96,5 +97,5 @@ class RolloutsStage(GraspStage):
             "simulated": int(np.sum(table.column("simulated").to_numpy(zero_copy_only=False))),
             "outcomes": {name: int((outcomes == c).sum()) for c, name in enumerate(OUTCOME_NAMES)},
             "steps": int(np.sum(table.column("steps").to_numpy())),
-            **({"backend": "warp"} if settings.backend == "warp" else {}),
+            **simulator.meta(),
         }

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from graspgen.grippers import GripperSpec
+from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams
 
 __all__ = ["G", "grip_force", "torsion_arm", "shake_profiles", "slip_mass", "pivot_offset", "wedge_angle"]
@@ -67,22 +68,13 @@ def shake_profiles(lift: LiftParams) -> list[tuple[np.ndarray, np.ndarray, np.nd
     d sees (m/s^2: its gravity moment is ``m a_n d cos(theta)``), the hand's rotation about the closing axis (rad)
     and its angular acceleration (rad/s^2)."""
     zero = np.zeros(1)
-    if lift.protocol == "graspdatagen":
-        g = lift.graspdatagen.force_scale * G
-        return [(np.array([g]), np.array([g]), zero, zero)]
-    if lift.protocol == "acronym":
-        p = lift.acronym
-        g, shake = (G if p.gravity != "off" else 0.0), p.shake_amplitude > 0 or p.shake_angle > 0
-        amp, ang, freq, cyc, lift_acc = p.shake_amplitude, p.shake_angle, p.shake_frequency, p.shake_cycles, 0.0
-    else:
-        g, shake = G, lift.shake
-        amp, ang, freq, cyc = lift.shake_amplitude, lift.shake_angle, lift.shake_frequency, lift.shake_cycles
-        lift_acc = lift.lift_acceleration
-    phases = [(np.array([g + lift_acc]), np.array([g + lift_acc]), zero, zero)]
-    if shake:
+    spec = protocol_of(lift).load(lift, G)
+    g = spec.gravity
+    phases = [(np.array([g + spec.lift_acceleration]), np.array([g + spec.lift_acceleration]), zero, zero)]
+    if spec.shake is not None:
+        amp, ang, freq, cyc = spec.shake
         _, a = _wave(amp, freq, cyc)
-        sign = -1.0 if lift.protocol == "acronym" else 1.0  # acronym: the hand moves along +approach; table: up
-        load = g + sign * a
+        load = g + spec.shake_sign * a
         phases.append((load, load, np.zeros_like(a), np.zeros_like(a)))
         theta, alpha = _wave(ang, freq, cyc)
         phases.append((np.full_like(theta, g), g * np.cos(theta), theta, alpha))

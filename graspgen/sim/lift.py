@@ -32,29 +32,17 @@ initial ``qpos``, so a rollout's result depends only on its inputs, not on earli
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 
 import numpy as np
 
-from graspgen.geometry.poses import quat_mul, rotation_angle
-from graspgen.grippers import jaw_opening
-from graspgen.sim.lift_rules import Drift, both_jaws, jaws_on, no_contacts
 from graspgen.sim.lift_state import LiftState
 from graspgen.sim.poses_mj import pos_quat
-from graspgen.sim.protocols import Outcome, RolloutResult
+from graspgen.sim.protocol_phases import RolloutProtocol, protocol_of
+from graspgen.sim.protocols import RolloutResult
 from graspgen.validation import check_number
 
 __all__ = ["LiftSimulator"]
-
-
-class _Decided(Exception):
-    """Internal: a rule fired; carries the outcome code and phase."""
-
-    def __init__(self, code: int, phase: str) -> None:
-        super().__init__(code, phase)
-        self.code = code
-        self.phase = phase
 
 
 class LiftSimulator(LiftState):
@@ -157,7 +145,10 @@ class LiftSimulator(LiftState):
         Name prefix of the gripper's elements (as given to :func:`graspgen.sim.gripper_model.attach_gripper`).
     """
 
-    # -- the protocols --------------------------------------------------------------------------------------------
+    @property
+    def protocol(self) -> RolloutProtocol:
+        """The protocol object of ``params.protocol`` (:mod:`graspgen.sim.protocol_phases`): it runs the phases."""
+        return protocol_of(self.params)
 
     def rollout(self, T_tcp_world, width: float, target_body: str, *,
                 observer: Callable[[str, int], None] | None = None) -> RolloutResult:
@@ -186,172 +177,4 @@ class LiftSimulator(LiftState):
         target, roles, index = self.target_roles(target_body)
         self.steps = 0
         R = np.asarray(T_tcp_world, dtype=float)[:3, :3]
-        if self.params.protocol == "graspdatagen":
-            return self._rollout_free_space(pos, quat, R, target, roles, observer, self._graspgen_tugs)
-        if self.params.protocol == "acronym":
-            return self._rollout_free_space(pos, quat, R, target, roles, observer, self._acronym_shake)
-        return self._rollout_table(pos, quat, np.asarray(T_tcp_world, dtype=float)[:3, :3], width, target, roles,
-                                   index, observer)
-
-    def _approach_check(self, roles: np.ndarray, target: int, index: int):
-        """The rule of placement and approach (class docstring), as a ``check(phase)`` callback; the objects' pose
-        at placement is read now."""
-        objects = self.index.objects
-        pos0, quat0 = self._xipos[objects], self._xquat[objects]  # fancy indexing: copies
-
-        def check_approach(phase: str) -> None:
-            code = self.contact_code(roles, target)
-            if code is not None:
-                raise _Decided(code, phase)
-            moved = self._moved(pos0, quat0)
-            if moved[index]:
-                raise _Decided(Outcome.COLLISION_WITH_TARGET, phase)
-            if moved.any():
-                raise _Decided(Outcome.COLLISION_WITH_CLUTTER, phase)
-
-        return check_approach
-
-    def _table_shake(self, pos: np.ndarray, quat: np.ndarray, check_slip, observer) -> None:
-        """The ``table`` protocol's shake at the top of the lift: along world z, then about the TCP x axis."""
-        s = self.schedule
-        top = pos + s.lift_offsets[-1]
-        shake_pos = np.repeat(top[None], len(s.shake_z), axis=0)
-        shake_pos[:, 2] += s.shake_z
-        self._move(shake_pos, None, "shaking", check_slip, observer)
-        self._move(np.repeat(top[None], len(s.shake_qx), axis=0), quat_mul(quat, s.shake_qx),
-                   "shaking", check_slip, observer)
-
-    def _rollout_table(self, pos, quat, R, width, target, roles, index, observer) -> RolloutResult:
-        """The ``table`` protocol (class docstring)."""
-        p, s = self.params, self.schedule
-        z_axis = R[:, 2].copy()
-        open_width = float(jaw_opening(width, p.width_margin, self.min_width, self.max_width))
-        pre = pos - p.approach_distance * z_axis
-        nan = math.nan
-        closed_width = lift_gain = rel_t = rel_r = nan
-        motion_closing = motion_shaking = (nan, nan)
-        pose_closed = np.full((4, 4), nan)
-        shake_mark = drift = None
-        contacts = no_contacts()
-        self._gravity_view[:] = 0.0 if p.gravity_until_closed else self.gravity
-        try:
-            # 1. placement
-            self.place(pre, quat, open_width)
-            check_approach = self._approach_check(roles, target, index)
-            if observer is not None:
-                observer("placement", 0)
-            check_approach("placement")
-            # 2. approach
-            self._move(pre + s.approach[:, None] * z_axis, None, "approach", check_approach, observer)
-            # 3. closing
-            closed_width, motion_closing, pose_closed, contacts = self._closing(target, roles, observer)
-            if not both_jaws(contacts):
-                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
-            self._gravity_view[:] = self.gravity
-            # 4. lift, hold, shake
-            rel_p0, rel_R0 = self.relative(target)
-            drift = Drift(rel_p0, rel_R0)
-            z_obj0 = float(self._xipos[target][2])
-
-            def check_slip(phase: str) -> None:
-                if self._slipped(target, rel_p0, rel_R0, drift):
-                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
-
-            self._move(pos + s.lift_offsets, None, "lifting", check_slip, observer)
-            self._wait(s.hold_steps, "holding", check_slip, observer)
-            if p.shake:
-                shake_mark = self.mark(target)
-                self._table_shake(pos, quat, check_slip, observer)
-            lift_gain = float(self._xipos[target][2]) - z_obj0
-            if lift_gain < p.min_lift_fraction * p.lift_height:
-                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
-            code, phase = Outcome.SUCCESS, "end"
-        except _Decided as decided:
-            code, phase = Outcome(decided.code), decided.phase
-        finally:
-            self._gravity_view[:] = self.gravity
-        if code >= Outcome.SLIPPED_DURING_LIFTING:
-            rel_p, rel_R = self.relative(target)
-            rel_t = math.sqrt(float((rel_p - rel_p0) @ (rel_p - rel_p0)))
-            rel_r = rotation_angle(rel_R0, rel_R)
-            lift_gain = float(self._xipos[target][2]) - z_obj0
-        if shake_mark is not None:
-            motion_shaking = self.motion(target, shake_mark)
-        return self.result(code, phase, closed_width, lift_gain, (rel_t, rel_r), contacts, motion_closing,
-                           motion_shaking, pose_closed, self._final_drift(target, drift))
-
-    def _rollout_free_space(self, pos, quat, R, target, roles, observer, disturb) -> RolloutResult:
-        """The frame the free-space protocols share (``acronym``, ``graspdatagen``): gravity off, the hand placed at the
-        grasp pose with its jaws open (touching anything there decides the grasp, the target without the fingers'
-        allowance), closed, then ``disturb(pos, quat, R, target, check_held, observer)`` tests the grip (the
-        protocol's own part); success when both jaws still touch the target at the end."""
-        nan = math.nan
-        closed_width = rel_t = rel_r = nan
-        motion_closing = motion_shaking = (nan, nan)
-        pose_closed = np.full((4, 4), nan)
-        shake_mark = rel0 = drift = None
-        contacts = no_contacts()
-        self._gravity_view[:] = 0.0
-        side = self.index.geom_side
-        try:
-            # 1. placement: at the grasp pose, jaws open; the open hand must not touch anything
-            self.place(pos, quat, self.schedule.open_width)
-            if observer is not None:
-                observer("placement", 0)
-            code = self.contact_code(roles, target, self.strict_allowance)
-            if code is not None:
-                raise _Decided(code, "placement")
-            # 2. closing, gravity off
-            closed_width, motion_closing, pose_closed, contacts = self._closing(target, roles, observer)
-            if not both_jaws(contacts):
-                raise _Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
-            rel0 = self.relative(target)
-            drift = Drift(*rel0)
-
-            def check_held(phase: str) -> None:
-                drift.update(*self.relative(target))
-                if not any(jaws_on(self.data, side, roles)):
-                    raise _Decided(Outcome.SLIPPED_DURING_LIFTING, phase)
-
-            # 3. the protocol's disturbance
-            shake_mark = self.mark(target)
-            disturb(pos, quat, R, target, check_held, observer)
-            if not all(jaws_on(self.data, side, roles)):
-                raise _Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
-            code, phase = Outcome.SUCCESS, "end"
-        except _Decided as decided:
-            code, phase = Outcome(decided.code), decided.phase
-        finally:
-            self.data.xfrc_applied[target] = 0.0
-            self._gravity_view[:] = self.gravity
-        if rel0 is not None:
-            rel_p, rel_R = self.relative(target)
-            rel_t = math.sqrt(float((rel_p - rel0[0]) @ (rel_p - rel0[0])))
-            rel_r = rotation_angle(rel0[1], rel_R)
-        if shake_mark is not None:
-            motion_shaking = self.motion(target, shake_mark)
-        return self.result(code, phase, closed_width, nan, (rel_t, rel_r), contacts, motion_closing, motion_shaking,
-                           pose_closed, self._final_drift(target, drift))
-
-    def _acronym_shake(self, pos, quat, R, target, check_held, observer) -> None:
-        """``acronym`` (:class:`graspgen.sim.protocols.AcronymParams`): gravity on as configured, shake along the
-        approach axis, then about the closing axis through the TCP, then settle."""
-        acr, s = self.params.acronym, self.schedule
-        if acr.gravity == "world":
-            self._gravity_view[:] = self.gravity
-        elif acr.gravity == "approach":
-            self._gravity_view[:] = math.sqrt(float(self.gravity @ self.gravity)) * R[:, 2]
-        self._move(pos + s.shake_z[:, None] * R[:, 2], None, "shaking", check_held, observer)
-        self._move(np.repeat(pos[None], len(s.shake_qx), axis=0), quat_mul(quat, s.shake_qx),
-                   "shaking", check_held, observer)
-        self._wait(s.settle_steps, "holding", check_held, observer)
-
-    def _graspgen_tugs(self, pos, quat, R, target, check_held, observer) -> None:
-        """``graspdatagen`` (:class:`graspgen.sim.protocols.GraspDataGenParams`): gravity stays off; the object's weight
-        pulls it along each tug direction (TCP frame at the grasp) at its centre of mass."""
-        weight = self.params.graspdatagen.force_scale * float(self.model.body_subtreemass[target]) * math.sqrt(
-            float(self.gravity @ self.gravity))
-        for direction in self.schedule.tug_dirs:
-            self.data.xfrc_applied[target, :3] = weight * (R @ direction)
-            self._wait(self.schedule.tug_steps, "shaking", check_held, observer)
-        self.data.xfrc_applied[target, :3] = 0.0
+        return self.protocol.rollout(self, pos, quat, R, width, target, roles, index, observer)

@@ -19,6 +19,7 @@ import numpy as np
 from graspgen.errors import SettingsError
 from graspgen.sim.gripper_state import LinkageCouplings, linkage_couplings, pad_geom_ids
 from graspgen.sim.lift_rules import CLUTTER, GRIPPER, LEFT, NOT_GRIPPER, PALM, RIGHT, SUPPORT, TARGET
+from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import AcronymParams, LiftParams
 
 __all__ = ["LiftIndex", "StaticCheck", "apply_contact_overrides", "index_scene", "set_grip"]
@@ -154,14 +155,14 @@ def set_grip(m: mujoco.MjModel, params: LiftParams, index: LiftIndex) -> tuple[f
     model_force = float(m.actuator_forcerange[act][1])
     damping = float(m.dof_damping[jaw_vadr[0]])
     closing_speed = 2.0 * model_force / damping if damping > 0 else math.inf
-    if params.protocol == "table":
+    free = protocol_of(params).settings(params)  # the free-space protocols' grip settings
+    if free is None:
         grip_force = model_force if params.grip_force is None else params.grip_force
         m.actuator_forcerange[act] = (-grip_force, grip_force)
         if damping > 0:
             for vadr in jaw_vadr:
                 m.dof_damping[vadr] = damping * grip_force / model_force
         return grip_force, closing_speed
-    free = params.acronym if params.protocol == "acronym" else params.graspdatagen  # the same grip settings
     grip_force = model_force if free.grip_force is None else free.grip_force
     if free.closing_speed is not None:
         closing_speed = free.closing_speed

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams
 
 __all__ = ["Schedule", "rollout_schedule", "shake_quats", "shake_wave", "trapezoid"]
@@ -151,8 +152,8 @@ def rollout_schedule(params: LiftParams, dt: float, min_width: float, max_width:
     if params.shake:
         shake_z = shake_wave(params.shake_amplitude, params.shake_frequency, params.shake_cycles, dt)
         shake_qx = shake_quats(params.shake_angle, params.shake_frequency, params.shake_cycles, dt)
-    if params.protocol in ("acronym", "graspdatagen"):
-        free = params.acronym if params.protocol == "acronym" else params.graspdatagen
+    free = protocol_of(params).settings(params)
+    if free is not None:  # a free-space protocol: its own opening
         open_width = float(np.clip(max_width if free.open_width is None else free.open_width, min_width, max_width))
         # From fully open to fully closed takes (open - min) / closing_speed: never stop closing before that.
         full_close = 1.25 * (open_width - min_width) / closing_speed

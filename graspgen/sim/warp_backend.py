@@ -45,15 +45,11 @@ from graspgen.sim.poses_mj import pos_quat
 from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
 from graspgen.sim.warp_batch import BatchRun, disturbance_segments, unfinished_result
 from graspgen.sim.warp_table import TableRun, table_placement
-from graspgen.validation import check, check_choice, check_instance, check_int
+from graspgen.validation import check, check_instance, check_int
 from shared_utils.keys import KEY_OMIT_DEFAULT  # the flag of the settings added with this backend (re-exported)
 
-__all__ = ["BACKENDS", "KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WarpParams", "WarpLiftSimulator", "check_backend",
-           "import_warp", "warp_versions", "require_warp"]
-
-
-#: Rollout backends: ``mujoco`` (the CPU, :class:`LiftSimulator`) and ``warp`` (:class:`WarpLiftSimulator`).
-BACKENDS: tuple[str, ...] = ("mujoco", "warp")
+__all__ = ["KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WarpParams", "WarpLiftSimulator", "import_warp", "warp_versions",
+           "require_warp"]
 
 #: The protocols the warp backend runs.
 WARP_PROTOCOLS: tuple[str, ...] = ("acronym", "graspdatagen", "table")
@@ -95,14 +91,6 @@ def require_warp(key: str, backend: str, packages: dict[str, str] | None) -> Non
     if backend == "warp" and packages is None:
         raise SettingsError(f"{key}: 'warp' needs mujoco-warp and warp-lang, which are not installed "
                             "(pip install -e '.[warp]'), or use 'mujoco'")
-
-
-def check_backend(backend: str, protocol: str) -> str:
-    """``backend`` if it is one of :data:`BACKENDS` and runs ``protocol``; SettingsError naming ``backend``."""
-    check_choice("backend", backend, BACKENDS)
-    check("backend", backend == "mujoco" or protocol in WARP_PROTOCOLS,
-          f"be 'mujoco' for the {protocol!r} protocol (the warp backend runs {', '.join(WARP_PROTOCOLS)})", backend)
-    return backend
 
 
 @dataclass(frozen=True)
@@ -161,7 +149,8 @@ class WarpLiftSimulator:
                  qpos=None, prefix: str = "gripper/") -> None:
         params = check_instance("params", LiftParams() if params is None else params, LiftParams)
         warp = check_instance("warp", WarpParams() if warp is None else warp, WarpParams)
-        check_backend("warp", params.protocol)
+        check("params.protocol", params.protocol in WARP_PROTOCOLS, f"be one of {', '.join(WARP_PROTOCOLS)} (the "
+              "protocols the warp backend runs)", params.protocol)
         self.warp = warp
         self.nworld, self.nconmax, self.njmax = warp.nworld, warp.nconmax, warp.njmax
         self.wp, self.mjw = import_warp()

@@ -44,8 +44,8 @@ class Segment:
 
 
 def disturbance_segments(params: LiftParams, schedule: Schedule) -> list[Segment]:
-    """The protocol's disturbance (the CPU backend's ``_acronym_shake`` / ``_graspgen_tugs``; ``table``: lift, hold
-    and ``_table_shake``) as segments."""
+    """The protocol's disturbance (the CPU backend's ``disturb`` of :mod:`graspgen.sim.protocol_phases`; ``table``:
+    lift, hold and ``TableProtocol.shake``) as segments."""
     s = schedule
     if params.protocol == "table":
         top = float(s.lift_offsets[-1, 2])
@@ -64,7 +64,7 @@ def disturbance_segments(params: LiftParams, schedule: Schedule) -> list[Segment
 
 def start_gravity(cpu: LiftSimulator, R: np.ndarray) -> np.ndarray:
     """Gravity (3,) of a world once its closing ended, for the grasp's rotation ``R (3, 3)``
-    (:meth:`LiftSimulator._acronym_shake`; ``graspdatagen``: off; ``table``: the scene's)."""
+    (:meth:`graspgen.sim.protocol_phases.AcronymProtocol.disturb`; ``graspdatagen``: off; ``table``: the scene's)."""
     if cpu.params.protocol == "table":
         return cpu.gravity.copy()
     if cpu.params.protocol == "acronym":

@@ -3,7 +3,7 @@
 until closed, ``gravity_until_closed``).
 
 What ``table`` adds to the free-space protocols (:class:`graspgen.sim.warp_batch.BatchRun`), each the CPU backend's
-rule (:meth:`graspgen.sim.lift.LiftSimulator._rollout_table`):
+rule (:meth:`graspgen.sim.protocol_phases.TableProtocol.rollout`):
 
 * **placement** at the pre-grasp pose (``approach_distance`` back along -z), the jaws open to the grasp's width plus
   ``width_margin`` (:func:`graspgen.grippers.jaw_opening`), judged on the CPU by the touch rule with the fingers'
@@ -35,7 +35,7 @@ __all__ = ["TableRun", "table_placement"]
 
 def table_placement(cpu: LiftSimulator, pose: np.ndarray, pos: np.ndarray, quat: np.ndarray, width: float,
                     target: int, roles: np.ndarray) -> dict | RolloutResult:
-    """The ``table`` protocol's placement on the CPU (``LiftSimulator._rollout_table``, step 1): a result when the
+    """The ``table`` protocol's placement on the CPU (``TableProtocol.place``, step 1): a result when the
     open hand at the pre-grasp pose collides (codes 0-2), else the world's start state.
 
     Parameters

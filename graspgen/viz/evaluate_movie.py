@@ -26,6 +26,7 @@ select_backend()  # Rendering needs a headless GL backend; MuJoCo reads MUJOCO_G
 from collections.abc import Sequence  # noqa: E402
 
 from graspgen.sim.object_world import world_spec  # noqa: E402
+from graspgen.sim.protocol_phases import protocol_of  # noqa: E402
 from graspgen.sim.render import render_frames  # noqa: E402
 from graspgen.validation import check_int  # noqa: E402
 from graspgen.viz.rollout_movie import (  # noqa: E402
@@ -90,7 +91,7 @@ def evaluated_rollout_movie(
     frames = after_closing_frames(states, n_frames)
 
     lift = world.world.lift
-    rise = lift.lift_height if lift.protocol == "table" else 0.0  # the other protocols lift nothing
+    rise = lift.lift_height if protocol_of(lift).lifts else 0.0
     distance = max(_FRAMING, 4.0 * world.geometry.torque_scale)
     camera = side_cameras(T, rise, width=size[0], height=size[1], distance=distance)[0]
     images = render_frames(world_spec(world.world, world.visual()), [f.qpos for f in frames], [camera])

@@ -201,7 +201,7 @@ def rollout_movie(
     name = scene.object_names[index]
     T = column_array(grasps, "pose_world", (4, 4))[row]
     width = float(grasps.column("width")[row].as_py())
-    result, states = record_rollout(simulator, T, width, object_body_name(index, name))
+    result, states = record_rollout(simulator.cpu, T, width, object_body_name(index, name))
     frames = pick_frames(states, n_frames)
 
     # The same scene with visual meshes, for the renderer, filmed by the first side camera whose line of sight to

@@ -70,10 +70,11 @@ import pyarrow as pa
 from graspgen.grippers import load_gripper
 from graspgen.quality.epsilon import EpsilonParams, ObjectGeometry
 from graspgen.quality.perturbation import DRAWS_PER_COPY, RobustnessParams
-from graspgen.sim.object_world import world_simulator, world_warp_simulator
+from graspgen.sim.object_world import world_simulator, world_spec
 from graspgen.sim.protocols import Outcome, RolloutResult
 from graspgen.sim.scene_model import object_body_name
-from graspgen.sim.warp_backend import WarpParams, check_backend
+from graspgen.sim.simulator import SIMULATORS, check_backend, make_simulator
+from graspgen.sim.warp_backend import WarpParams
 from graspgen.validation import check_instance, check_rng
 from graspgen.workflows.evaluate_columns import METADATA_KEY, evaluation_table, with_robustness_columns
 from graspgen.workflows.evaluate_settings import EvaluateParams
@@ -155,12 +156,11 @@ def evaluate_grasps(
                           protocol=protocol, cache_dir=cache_dir)
     check_backend(backend, ew.world.lift.protocol)
     jobs = (os.cpu_count() or 1) if jobs <= 0 else int(jobs)
-    results = _roll_out_warp(ew.world, ew.T_world, ew.width, warp) if backend == "warp" else _roll_out(ew, jobs)
+    results, backend_meta = _roll_out(ew, backend, warp, jobs)
     table = evaluation_table(ew.T_tcp, ew.width, list(ew.source), results, ew.world.obj.pose)
     info = dict(ew.info)
     info["backend"] = backend
-    if backend == "warp":
-        info["warp"] = (warp or WarpParams()).to_dict()
+    info.update(backend_meta)
     if robustness is not None:
         table = _with_robustness(table, ew, robustness, rng, jobs, info)
     return table.replace_schema_metadata({METADATA_KEY: json.dumps(info, sort_keys=True)})
@@ -183,32 +183,27 @@ def content_seed(world: EvaluationWorld, robustness: RobustnessParams) -> int:
     return int.from_bytes(digest.digest()[:8], "little")
 
 
-def _roll_out(ew: EvaluationWorld, jobs: int) -> list[RolloutResult]:
-    """All grasps on the CPU: ``jobs`` contiguous chunks, one joblib worker and one compiled model each."""
+def _roll_out(ew: EvaluationWorld, backend: str, warp: WarpParams | None,
+              jobs: int) -> tuple[list[RolloutResult], dict[str, Any]]:
+    """All grasps, in input order, and the backend's metadata: contiguous chunks, one joblib worker and one compiled
+    model each; ``jobs`` chunks where the backend gains from workers (the CPU), else one."""
     from joblib import Parallel, delayed
 
     n = len(ew.T_world)
-    chunks = [c for c in np.array_split(np.arange(n), max(1, min(jobs, n))) if len(c)]
+    workers = jobs if SIMULATORS[backend].parallel_workers else 1
+    chunks = [c for c in np.array_split(np.arange(n), max(1, min(workers, n))) if len(c)]
     parts = Parallel(n_jobs=len(chunks) or 1)(
-        delayed(_roll_out_chunk)(ew.world, ew.T_world[c], ew.width[c]) for c in chunks
+        delayed(_roll_out_chunk)(ew.world, ew.T_world[c], ew.width[c], backend, warp) for c in chunks
     )
-    return [r for part in parts for r in part]
+    return [r for part, _ in parts for r in part], {k: v for _, meta in parts for k, v in meta.items()}
 
 
-def _roll_out_chunk(world: ObjectWorld, T_world: np.ndarray, widths: np.ndarray) -> list[RolloutResult]:
-    """Roll out a chunk of grasps (world-frame TCP poses) in one freshly compiled model (one per worker)."""
-    simulator = world_simulator(world)
-    body = object_body_name(0, world.obj.name)
-    return [simulator.rollout(T, float(w), body) for T, w in zip(T_world, widths)]
-
-
-def _roll_out_warp(world: ObjectWorld, T_world: np.ndarray, widths: np.ndarray,
-                   warp: WarpParams | None) -> list[RolloutResult]:
-    """All grasps on the warp backend, in one model of ``warp.nworld`` worlds (input order)."""
-    if len(T_world) == 0:
-        return []
-    simulator = world_warp_simulator(world, warp)  # as EvaluationWorld's
-    return simulator.rollouts(T_world, object_body_name(0, world.obj.name), widths)
+def _roll_out_chunk(world: ObjectWorld, T_world: np.ndarray, widths: np.ndarray, backend: str,
+                    warp: WarpParams | None) -> tuple[list[RolloutResult], dict[str, Any]]:
+    """Roll out a chunk of grasps (world-frame TCP poses ``(k, 4, 4)``, widths ``(k,)``) in one freshly compiled
+    model (one per worker); the results and the simulator's metadata."""
+    simulator = make_simulator(world_spec(world).compile(), world.lift, backend, warp)
+    return simulator.rollouts(T_world, widths, object_body_name(0, world.obj.name)), simulator.meta()
 
 
 def _with_robustness(table: pa.Table, ew: EvaluationWorld, robustness: RobustnessParams,

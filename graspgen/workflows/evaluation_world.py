@@ -22,6 +22,7 @@ from graspgen.grippers import GripperSpec, load_gripper
 from graspgen.quality.epsilon import ObjectGeometry
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.object_world import ObjectWorld, settled_object_pose, world_simulator, world_warp_simulator
+from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams
 from graspgen.sim.scene_model import PlacedObject, object_body_name
 from graspgen.sim.warp_backend import WarpLiftSimulator, WarpParams
@@ -83,7 +84,7 @@ def _settings(params: EvaluateParams | None, protocol: str | None, free_space: b
     params = EvaluateParams() if params is None else check_instance("params", params, EvaluateParams)
     if protocol is not None:
         params = dataclasses.replace(params, lift=params.lift.with_protocol(protocol))
-    if params.lift.protocol in ("acronym", "graspdatagen") and not free_space:
+    if protocol_of(params.lift).free_space and not free_space:
         raise SettingsError(f"protocol: {params.lift.protocol!r} is a free-space protocol (no support plane); use "
                             "'table' with a support")
     return params
@@ -106,8 +107,9 @@ def _opening(prepared: Any, T: np.ndarray, widths: np.ndarray | None, spec: Grip
              lift: LiftParams) -> tuple[np.ndarray, list[str]]:
     """Width per grasp and where it came from (``protocol``, ``input``, ``raycast`` or ``open``)."""
     n = len(T)
-    if lift.protocol == "acronym":  # the jaws open to the protocol's opening whatever the grasp's width
-        opening = spec.max_width if lift.acronym.open_width is None else lift.acronym.open_width
+    protocol = protocol_of(lift)
+    if protocol.free_space:  # the jaws open to the protocol's opening whatever the grasp's width
+        opening = spec.max_width if protocol.settings(lift).open_width is None else protocol.settings(lift).open_width
         return np.full(n, float(np.clip(opening, spec.min_width, spec.max_width))), ["protocol"] * n
     if widths is not None:
         return widths, ["input"] * n
@@ -180,7 +182,7 @@ def evaluation_world(
     T = check_transforms("T_tcp", T_tcp)
     widths = _checked_widths(widths, len(T))
     lift = params.lift
-    if lift.protocol != "acronym":
+    if protocol_of(lift).lifts:  # the free-space protocols switch gravity themselves
         lift = dataclasses.replace(lift, gravity_until_closed=bool(free_space))
     # Stable poses only matter on a table; in free space skip their MuJoCo settle check (seconds per pose).
     poses = StablePoseParams(settle_check=not free_space, max_poses=1)

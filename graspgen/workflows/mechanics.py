@@ -36,7 +36,8 @@ import trimesh
 from graspgen.errors import SimulationError
 from graspgen.grippers import load_gripper
 from graspgen.quality import mechanics_theory as theory
-from graspgen.sim.protocols import AcronymParams, LiftParams
+from graspgen.sim.protocol_phases import protocol_of
+from graspgen.sim.protocols import LiftParams
 from graspgen.workflows.evaluate_settings import EvaluateParams
 from graspgen.workflows.evaluation_world import EvaluationWorld, evaluation_world
 
@@ -123,11 +124,7 @@ def wedge_mesh(alpha: float, path: Path) -> Path:
 def protocol_params(protocol: str, kind: str) -> LiftParams:
     """The protocol's default settings; ``heavy`` turns the disturbance off (acronym: no shake; table: no shake)."""
     lift = LiftParams().with_protocol(protocol)
-    if kind == "heavy" and protocol == "acronym":
-        lift = dataclasses.replace(lift, acronym=AcronymParams(shake_amplitude=0.0, shake_angle=0.0))
-    elif kind == "heavy" and protocol == "table":
-        lift = dataclasses.replace(lift, shake=False)
-    return lift
+    return protocol_of(lift).calm(lift) if kind == "heavy" else lift
 
 
 def _grasp(offset_y: float, R_world=None) -> np.ndarray:
@@ -155,8 +152,9 @@ class _Case:
         self.lift = protocol_params(protocol, kind)
         params = EvaluateParams(lift=self.lift, friction=FRICTION[kind], mass=mass)
         self.world: EvaluationWorld = evaluation_world(mesh, 1.0, _grasp(0.0)[None], None, gripper, params,
-                                                       free_space=protocol != "table", cache_dir=cache_dir)
-        self.R = self.world.world.obj.pose[:3, :3] if protocol == "table" else None
+                                                       free_space=protocol_of(protocol).free_space,
+                                                       cache_dir=cache_dir)
+        self.R = None if protocol_of(protocol).free_space else self.world.world.obj.pose[:3, :3]
         self.mass = mass
         self.rollouts = 0
 

@@ -137,7 +137,8 @@ from graspgen.sim.gripper_model import attach_gripper
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams, Outcome, RolloutResult
 from graspgen.sim.scene_model import free_space_spec, object_body_name, placed_object
-from graspgen.sim.warp_backend import WarpLiftSimulator, WarpParams
+from graspgen.sim.simulator import Simulator, make_simulator
+from graspgen.sim.warp_backend import WarpParams
 from graspgen.validation import check_instance, check_number, check_rng
 from graspgen.workflows.candidate_pool import CandidatePool, collision_cap
 from graspgen.workflows.metrics import object_geometry
@@ -182,7 +183,7 @@ Kept = tuple[str, np.ndarray, float, RolloutResult]
 
 
 def free_space_simulator(record: ObjectRecord, gripper: str, lift: LiftParams, friction: float,
-                         warp: WarpParams | None = None) -> tuple[LiftSimulator | WarpLiftSimulator, str]:
+                         backend: str = "mujoco", warp: WarpParams | None = None) -> tuple[Simulator, str]:
     """The object alone in free space at the identity pose (world = mesh frame) with ``gripper`` attached,
     compiled: ``(simulator, target body name)``. Gravity is the scene's (0, 0, -9.81); the free-space protocols
     switch it off and on themselves.
@@ -197,15 +198,15 @@ def free_space_simulator(record: ObjectRecord, gripper: str, lift: LiftParams, f
         The protocol and physics.
     friction : float
         The object's sliding friction coefficient (it governs the gripper contacts).
+    backend : str
+        The simulator's backend (:func:`graspgen.sim.simulator.make_simulator`).
     warp : WarpParams, optional
-        The warp backend's settings: a :class:`~graspgen.sim.warp_backend.WarpLiftSimulator` of the same model.
+        The warp backend's settings.
     """
     obj = placed_object(record, np.eye(4), friction, visual=False)
     spec = free_space_spec(obj, lift.physics_options((0.0, 0.0, -9.81)))
     attach_gripper(spec, load_gripper(gripper))
-    if warp is not None:
-        return WarpLiftSimulator(spec.compile(), lift, warp), object_body_name(0, record.name)
-    return LiftSimulator(spec.compile(), lift), object_body_name(0, record.name)
+    return make_simulator(spec.compile(), lift, backend, warp), object_body_name(0, record.name)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -238,8 +239,6 @@ class _Search:
     """The antipodal candidates that succeeded (the near misses' parents): TCP poses, widths, depths."""
     good_width: list[float] = dataclasses.field(default_factory=list)
     good_depth: list[float] = dataclasses.field(default_factory=list)
-    device_rollouts: int = 0
-    """Candidates rolled out on the warp backend (whole batches: the kept ones and those past the stop)."""
 
     def done(self) -> bool:
         if self.params.selection == "natural":
@@ -308,12 +307,11 @@ def _batch(search: _Search, pool: CandidatePool, n_near: int, gripper: GripperSp
     return np.concatenate([pose, source[0][parent] @ D]), np.concatenate([width, source[1][parent]]), depth, kinds
 
 
-def _search(search: _Search, simulator: LiftSimulator | WarpLiftSimulator, body: str, pool: CandidatePool,
-            gripper: GripperSpec, overhang: float, tilt: float, rng: np.random.Generator) -> None:
+def _search(search: _Search, simulator: Simulator, body: str, pool: CandidatePool, gripper: GripperSpec,
+            overhang: float, tilt: float, rng: np.random.Generator) -> None:
     """Roll candidates out batch by batch, each batch in a random order, until the targets are met, the candidates
-    run out or ``max_candidates`` rollouts were made. On a :class:`WarpLiftSimulator` a batch (up to the
-    ``max_candidates`` left) is rolled out at once and its results are taken in the same order, up to the same
-    stop."""
+    run out or ``max_candidates`` rollouts were made. Each batch (up to the ``max_candidates`` left) goes to the
+    simulator at once and its results are taken in order up to the stop (the CPU backend rolls out only those)."""
     params = search.params
     n_near_late = round(params.near_miss_fraction_when_positives_met * params.batch_size)
     natural = params.selection == "natural"
@@ -326,18 +324,12 @@ def _search(search: _Search, simulator: LiftSimulator | WarpLiftSimulator, body:
             search.stopped = "no_candidates"
             break
         poses, widths, depth, kinds = batch
-        order = rng.permutation(len(widths))
-        batched = None
-        if isinstance(simulator, WarpLiftSimulator):
-            ahead = order[: params.max_candidates - search.tried]
-            batched = simulator.rollouts(poses[ahead], body)
-            search.device_rollouts += len(ahead)
-        for j, i in enumerate(order):
-            if search.tried >= params.max_candidates or search.done():
-                break
-            T, w = poses[i], float(widths[i])
+        ahead = rng.permutation(len(widths))[: params.max_candidates - search.tried]
+        for i, result in zip(ahead, simulator.iter_rollouts(poses[ahead], widths[ahead], body)):
             d = float(depth[i]) if i < len(depth) else math.nan  # a near miss is never a parent
-            search.record(kinds[i], T, w, d, simulator.rollout(T, w, body) if batched is None else batched[j])
+            search.record(kinds[i], poses[i], float(widths[i]), d, result)
+            if search.done():
+                break
     if search.done():
         search.stopped = "targets"
 
@@ -441,8 +433,9 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
         without any), ``sampled`` (antipodal candidates
         the sampler produced), ``friction``, ``open_width``, ``near_miss`` (the overhang and tilt used),
         ``robustness`` (copies rolled out and their mean success, when on), ``rollouts`` (all, copies included),
-        ``seconds`` and ``rollouts_per_s`` (wall clock: the only entries that vary between runs); with the ``warp``
-        backend ``backend`` (its name and ``device_rollouts``, the candidates rolled out on it, whole batches).
+        ``seconds`` and ``rollouts_per_s`` (wall clock: the only entries that vary between runs); then the
+        simulator's :meth:`~graspgen.sim.simulator.Simulator.meta` (``warp``: ``backend``, ``warp`` and
+        ``device_rollouts``, the candidates rolled out on it, whole batches).
 
     Raises
     ------
@@ -461,9 +454,8 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
         f"{record.name}.attrs.friction", float(attrs_friction), low=0.0, low_open=True)
     overhang, tilt = params.overhang(gripper), params.tilt(gripper)
     geometry = object_geometry(record)
-    warp = None if params.backend == "mujoco" else dataclasses.replace(
-        params.warp, nworld=min(params.warp.nworld, params.batch_size))
-    simulator, body = free_space_simulator(record, params.gripper, params.lift, friction, warp)
+    warp = dataclasses.replace(params.warp, nworld=min(params.warp.nworld, params.batch_size))
+    simulator, body = free_space_simulator(record, params.gripper, params.lift, friction, params.backend, warp)
     mesh = trimesh.Trimesh(np.asarray(record.vertices, dtype=np.float64), np.asarray(record.faces), process=False)
     pool = CandidatePool(mesh, gripper, params.sampler, rng)
     search = _Search(params, collision_cap(params.collision_share, params.target_negatives or 0))
@@ -473,13 +465,13 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
     n_copies = params.num_perturbations
     noise = rng.standard_normal((len(success_rows), n_copies, 6)) if n_copies else None
     points, normals, epsilon = _contact_labels(search.kept, params, geometry, friction)
-    cpu = simulator.cpu if isinstance(simulator, WarpLiftSimulator) else simulator  # copies: on the CPU
-    copies = _robustness(search.kept, success_rows, noise, params, cpu, body)
+    copies = _robustness(search.kept, success_rows, noise, params, simulator.cpu, body)  # copies: on the CPU
     opening = protocol_opening(gripper, params.lift)
     table = _table(record.name, params, opening, search.kept, points, normals, epsilon, copies)
     seconds = time.perf_counter() - start
-    return table, _meta(record.name, params, search, pool.sampled, friction, opening, (overhang, tilt), success_rows,
-                        copies, seconds)
+    meta = _meta(record.name, params, search, pool.sampled, friction, opening, (overhang, tilt), success_rows,
+                 copies, seconds)
+    return table, {**meta, **simulator.meta()}
 
 
 def _meta(name: str, params: ObjectGraspsParams, search: _Search, sampled: int, friction: float, opening: float,
@@ -523,6 +515,4 @@ def _meta(name: str, params: ObjectGraspsParams, search: _Search, sampled: int, 
     if params.num_perturbations:
         mean = float(np.mean(np.array([copies[j].robustness for j in success_rows]))) if success_rows else None
         meta["robustness"] = {"copies": n_copies, "mean": mean}
-    if params.backend != "mujoco":
-        meta["backend"] = {"name": params.backend, "device_rollouts": search.device_rollouts}
     return meta

@@ -12,15 +12,17 @@ import numpy as np
 from graspgen.geometry.antipodal import AntipodalParams
 from graspgen.grippers import ACRONYM_GRIPPER, GripperSpec, load_gripper
 from graspgen.quality.epsilon import EpsilonParams
+from graspgen.sim.protocol_phases import ROLLOUT_PROTOCOLS, protocol_of
 from graspgen.sim.protocols import PROTOCOL_KEYS, LiftParams, Outcome, RolloutResult, check_protocol
-from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams, check_backend
+from graspgen.sim.simulator import check_backend
+from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
 from shared_utils.keys import KEY_VALUES
 
 __all__ = ["LABELS", "PROTOCOLS", "SELECTIONS", "ObjectGraspsParams", "default_overhang", "default_tilt",
            "free_space_sampler", "protocol_opening"]
 
-PROTOCOLS: tuple[str, ...] = ("acronym", "graspdatagen")
+PROTOCOLS: tuple[str, ...] = tuple(name for name, p in ROLLOUT_PROTOCOLS.items() if p.free_space)
 """The protocols an object-centric set may use: the free-space ones of :data:`graspgen.sim.protocols.PROTOCOLS`."""
 
 LABELS: tuple[str, ...] = ("held", "firm")
@@ -159,8 +161,7 @@ class ObjectGraspsParams:
         if self.sampler.approach != "any":
             object.__setattr__(self, "sampler", dataclasses.replace(self.sampler, approach="any"))
         check_instance("lift", self.lift, LiftParams)
-        if self.lift.protocol != self.protocol:
-            object.__setattr__(self, "lift", self.lift.with_protocol(self.protocol))
+        object.__setattr__(self, "lift", self.lift.with_protocol(self.protocol))
         check_backend(self.backend, self.protocol)
         check_instance("warp", self.warp, WarpParams)
         object.__setattr__(self, "friction", check_number("friction", self.friction, low=0.0, low_open=True))
@@ -216,6 +217,6 @@ def default_tilt(gripper: GripperSpec) -> float:
 def protocol_opening(gripper: GripperSpec, lift: LiftParams) -> float:
     """Pad separation (m) the jaws open to under a free-space protocol: its ``open_width`` (the gripper's
     ``max_width`` when null), clipped to the gripper's range (as :class:`graspgen.sim.lift.LiftSimulator` does)."""
-    settings = lift.acronym if lift.protocol == "acronym" else lift.graspdatagen
+    settings = protocol_of(lift).settings(lift)
     opening = gripper.max_width if settings.open_width is None else settings.open_width
     return float(np.clip(opening, gripper.min_width, gripper.max_width))

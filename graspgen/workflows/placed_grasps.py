@@ -69,6 +69,7 @@ from graspgen.io.scenes import SceneRecord, read_scene
 from graspgen.sim.gripper_model import attach_gripper
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.prefilter import CLUTTER, FREE, GROUND, CollisionChecker, PrefilterParams
+from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams, Outcome
 from graspgen.sim.scene_model import object_body_name, scene_spec
 from graspgen.validation import check, check_instance, check_int, check_number, check_rng
@@ -113,7 +114,7 @@ class PlacedGraspsParams:
         check_int("max_per_object", self.max_per_object, low=0)
         check_int("rescene_check", self.rescene_check, low=0)
         check_instance("lift", self.lift, LiftParams)
-        check("lift.protocol", self.lift.protocol == "table",
+        check("lift.protocol", protocol_of(self.lift).lifts,
               "be 'table': the scene rollout approaches and lifts in the scene", self.lift.protocol)
 
     def prefilter(self) -> PrefilterParams:

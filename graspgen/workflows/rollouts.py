@@ -60,10 +60,10 @@ from graspgen.grippers import load_gripper
 from graspgen.io.arrow import column_array
 from graspgen.io.scenes import SceneRecord, read_scene
 from graspgen.sim.gripper_model import attach_gripper
-from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.protocols import LiftParams, RolloutResult
 from graspgen.sim.scene_model import object_body_name, scene_spec
-from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpLiftSimulator, WarpParams, check_backend
+from graspgen.sim.simulator import Simulator, check_backend, make_simulator
+from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams
 from graspgen.validation import check_bool, check_instance
 from graspgen.workflows.rollout_columns import rollout_fields, rollout_table
 
@@ -106,25 +106,24 @@ SCHEMA = pa.schema(
 
 
 def scene_simulator(
-    scene_path: Path, load_object: Any, gripper: str, lift: LiftParams, warp: WarpParams | None = None
-) -> tuple[SceneRecord, LiftSimulator | WarpLiftSimulator]:
-    """Read a scene and compile it with the gripper attached, once, into a reusable :class:`LiftSimulator` (or, with
-    ``warp``, a :class:`~graspgen.sim.warp_backend.WarpLiftSimulator` of the same model)."""
+    scene_path: Path, load_object: Any, gripper: str, lift: LiftParams, backend: str = "mujoco",
+    warp: WarpParams | None = None
+) -> tuple[SceneRecord, Simulator]:
+    """Read a scene and compile it with the gripper attached, once, into a reusable
+    :class:`~graspgen.sim.simulator.Simulator` of ``backend`` (:func:`graspgen.sim.simulator.make_simulator`;
+    ``warp``: the warp backend's settings)."""
     scene = read_scene(scene_path)
     records = {n: load_object(n) for n in sorted(set(scene.object_names))}
     spec = scene_spec(scene, records, visual=False)
     attach_gripper(spec, load_gripper(gripper))
-    if warp is not None:
-        return scene, WarpLiftSimulator(spec.compile(), lift, warp)
-    return scene, LiftSimulator(spec.compile(), lift)
+    return scene, make_simulator(spec.compile(), lift, backend, warp)
 
 
-def roll_out_table(scene: SceneRecord, simulator: LiftSimulator | WarpLiftSimulator, grasps: pa.Table,
-                   params: RolloutsParams) -> pa.Table:
+def roll_out_table(scene: SceneRecord, simulator: Simulator, grasps: pa.Table, params: RolloutsParams) -> pa.Table:
     """Roll out (or take the pre-filter's label for) every grasp of a grasps table; one output row per grasp.
 
-    On a :class:`~graspgen.sim.warp_backend.WarpLiftSimulator` the scene's grasps are rolled out together, whatever
-    object each grasps (``simulator.nworld`` worlds per batch); results are in row order either way."""
+    The scene's grasps are rolled out as one batch, whatever object each grasps
+    (:meth:`graspgen.sim.simulator.Simulator.rollouts`); results are in row order."""
     poses = column_array(grasps, "pose_world", (4, 4))
     widths = grasps.column("width").to_numpy()
     prefilter = grasps.column("prefilter_code").to_numpy()
@@ -132,21 +131,15 @@ def roll_out_table(scene: SceneRecord, simulator: LiftSimulator | WarpLiftSimula
     results: list[RolloutResult | None] = [None] * len(grasps)
     todo = [i for i in range(len(grasps)) if prefilter[i] < 0 or params.simulate_rejected]
     bodies = [object_body_name(int(index[i]), scene.object_names[int(index[i])]) for i in todo]
-    if isinstance(simulator, WarpLiftSimulator):
-        for i, result in zip(todo, simulator.rollouts(poses[todo], bodies, widths[todo])):
-            results[i] = result
-        return results_table(grasps, results)
-    for i, body in zip(todo, bodies):
-        results[i] = simulator.rollout(poses[i], float(widths[i]), body)
+    for i, result in zip(todo, simulator.rollouts(poses[todo], widths[todo], bodies)):
+        results[i] = result
     return results_table(grasps, results)
 
 
-def warp_batch(grasps: pa.Table, params: RolloutsParams) -> WarpParams | None:
+def warp_batch(grasps: pa.Table, params: RolloutsParams) -> WarpParams:
     """The warp backend's settings for a scene's grasps table: ``params.warp`` with ``nworld`` no larger than the
-    number of grasps simulated (a batch steps all its worlds, used or not); None for the ``mujoco`` backend. Each
+    number of grasps simulated (a batch steps all its worlds, used or not; the CPU backend ignores them). Each
     world is independent, so the batch size does not change a grasp's rules."""
-    if params.backend != "warp":
-        return None
     todo = int(np.sum((grasps.column("prefilter_code").to_numpy() < 0) | params.simulate_rejected))
     return dataclasses.replace(params.warp, nworld=max(1, min(params.warp.nworld, todo)))
 

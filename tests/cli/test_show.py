@@ -57,7 +57,7 @@ def test_rerun_with_the_observer_gives_every_stored_outcome(run):
     poses = column_array(grasps, "pose_world", (4, 4))
     for i in simulated:
         index = int(grasps.column("object_index")[int(i)].as_py())
-        result, frames = record_rollout(sim, poses[i], grasps.column("width")[int(i)].as_py(),
+        result, frames = record_rollout(sim.cpu, poses[i], grasps.column("width")[int(i)].as_py(),
                                         object_body_name(index, scene.object_names[index]))
         assert result.code == rollouts.column("outcome")[int(i)].as_py()
         assert result.steps == rollouts.column("steps")[int(i)].as_py()

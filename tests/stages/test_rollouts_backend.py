@@ -11,8 +11,9 @@ import pyarrow as pa
 import pytest
 
 from graspgen.errors import SettingsError
+from graspgen.sim import simulator as simulator_module
 from graspgen.sim import warp_backend
-from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.simulator import make_simulator
 from graspgen.sim.warp_backend import WarpParams
 from graspgen.workflows.rollouts import RolloutsParams, roll_out_table, warp_batch
 from pipeline.config import load_config
@@ -42,7 +43,7 @@ def test_the_cpu_backend_keeps_the_keys_of_the_section_before_the_backend_existe
 
 
 def test_the_warp_backend_its_settings_and_versions_are_in_the_key(monkeypatch):
-    monkeypatch.setattr(stage_module, "warp_versions", lambda: dict(VERSIONS))
+    monkeypatch.setattr(simulator_module, "warp_versions", lambda: dict(VERSIONS))
     stage = stage_module.RolloutsStage()
     default = canonical_json(stage.params(load_config(Config, None, [])))
     warp = stage.params(load_config(Config, None, ["rollouts.backend=warp", "rollouts.warp.device=cpu"]))
@@ -50,7 +51,7 @@ def test_the_warp_backend_its_settings_and_versions_are_in_the_key(monkeypatch):
     assert warp.warp_packages == VERSIONS
     key = canonical_json(warp)
     assert key != default and '"backend":"warp"' in key and '"device":"cpu"' in key and '"warp-lang":"1.19.0"' in key
-    monkeypatch.setattr(stage_module, "warp_versions", lambda: {**VERSIONS, "warp-lang": "1.20.0"})
+    monkeypatch.setattr(simulator_module, "warp_versions", lambda: {**VERSIONS, "warp-lang": "1.20.0"})
     upgraded = stage.params(load_config(Config, None, ["rollouts.backend=warp", "rollouts.warp.device=cpu"]))
     assert canonical_json(upgraded) != key  # a new Warp re-runs the warp shards
 
@@ -68,7 +69,7 @@ def test_a_bad_backend_is_a_config_error_and_a_missing_extra_stops_the_run(monke
         load_config(Config, None, ["rollouts.backend=gpu"])
     with pytest.raises(ConfigError, match="rollouts.warp.nworld"):
         load_config(Config, None, ["rollouts.backend=warp", "rollouts.warp.nworld=0"])
-    monkeypatch.setattr(stage_module, "warp_versions", lambda: None)
+    monkeypatch.setattr(simulator_module, "warp_versions", lambda: None)
     stage = stage_module.RolloutsStage()
     params = stage.params(load_config(Config, None, ["rollouts.backend=warp"]))
     with pytest.raises(SettingsError, match=r"rollouts.backend: 'warp' needs mujoco-warp .*pip install") as err:
@@ -91,7 +92,7 @@ def _grasps() -> tuple[types.SimpleNamespace, pa.Table]:
 
 def test_warp_batch_is_sized_to_the_grasps_simulated():
     _, grasps = _grasps()
-    assert warp_batch(grasps, RolloutsParams()) is None
+    assert warp_batch(grasps, RolloutsParams()).nworld == 3  # the CPU backend ignores it
     assert warp_batch(grasps, RolloutsParams(backend="warp")).nworld == 3  # row 2 is rejected by the pre-filter
     assert warp_batch(grasps, RolloutsParams(backend="warp", simulate_rejected=True)).nworld == 4
     assert warp_batch(grasps, RolloutsParams(backend="warp", warp=WarpParams(nworld=2))).nworld == 2
@@ -100,13 +101,12 @@ def test_warp_batch_is_sized_to_the_grasps_simulated():
 @pytest.mark.warp
 def test_a_grasps_table_on_the_warp_backend_is_labelled_as_on_the_cpu():
     pytest.importorskip("mujoco_warp")
-    from graspgen.sim.warp_backend import WarpLiftSimulator
-
     scene, grasps = _grasps()
     model = _world([{}, {"xy": (0.2, 0.0)}])
-    cpu = roll_out_table(scene, LiftSimulator(model), grasps, RolloutsParams())
+    cpu = roll_out_table(scene, make_simulator(model), grasps, RolloutsParams())
     params = RolloutsParams(backend="warp", warp=WarpParams(device="cpu"))
-    warp = roll_out_table(scene, WarpLiftSimulator(model, params.lift, warp_batch(grasps, params)), grasps, params)
+    warp = roll_out_table(scene, make_simulator(model, params.lift, "warp", warp_batch(grasps, params)), grasps,
+                          params)
     assert cpu.schema == warp.schema
     assert cpu.column("outcome").to_pylist() == warp.column("outcome").to_pylist() == [5, 3, 1, 5]
     assert warp.column("simulated").to_pylist() == [True, True, False, True]

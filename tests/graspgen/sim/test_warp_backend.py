@@ -116,11 +116,8 @@ def test_batched_relative_pose_and_angle_are_the_cpu_formulas():
 # ------------------------------------------------------------------------------------ settings and errors
 
 
-def test_backend_choice_is_checked():
-    assert W.check_backend("mujoco", "table") == "mujoco"
-    assert [W.check_backend("warp", p) for p in P.PROTOCOLS] == ["warp"] * len(P.PROTOCOLS)
-    with pytest.raises(SettingsError, match="backend"):
-        W.check_backend("cuda", "acronym")
+def test_the_warp_simulator_runs_every_protocol():
+    assert set(W.WARP_PROTOCOLS) == set(P.PROTOCOLS)
 
 
 @pytest.mark.parametrize("change, field", [({"nworld": 0}, "nworld"), ({"nconmax": 0}, "nconmax"),

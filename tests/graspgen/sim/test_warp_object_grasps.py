@@ -12,6 +12,7 @@ import trimesh
 
 from graspgen.errors import SettingsError
 from graspgen.io.objects import ObjectRecord
+from graspgen.sim import simulator as simulator_module
 from graspgen.sim.protocols import PROTOCOL_KEYS
 from graspgen.sim.warp_backend import WarpParams
 from graspgen.workflows.object_grasps import label_object_grasps
@@ -45,13 +46,13 @@ def test_the_cpu_backend_keeps_the_object_grasps_keys():
 
 def test_the_warp_backend_joins_the_object_grasps_key_and_needs_its_extra(monkeypatch):
     stage = stage_module.ObjectGraspsStage()
-    monkeypatch.setattr(stage_module, "warp_versions", lambda: dict(VERSIONS))
+    monkeypatch.setattr(simulator_module, "warp_versions", lambda: dict(VERSIONS))
     default = canonical_json(stage.params(load_config(Config, None, [])))
     warp = stage.params(load_config(Config, None, ["object_grasps.backend=warp"]))
     key = canonical_json(warp)
     assert key != default and '"backend":"warp"' in key and '"mujoco-warp":"4.0.0"' in key
     stage.check(warp)
-    monkeypatch.setattr(stage_module, "warp_versions", lambda: None)
+    monkeypatch.setattr(simulator_module, "warp_versions", lambda: None)
     missing = stage.params(load_config(Config, None, ["object_grasps.backend=warp"]))
     with pytest.raises(SettingsError, match=r"object_grasps.backend: 'warp' needs mujoco-warp .*pip install"):
         stage.check(missing)
@@ -87,4 +88,4 @@ def test_a_box_set_on_the_warp_backend_keeps_the_cpu_backends_rows():
         assert cpu.column("outcome").to_pylist() == warp.column("outcome").to_pylist()
         assert cpu.column("pose_object").to_pylist() == warp.column("pose_object").to_pylist()
         assert meta["tried"] == cpu_meta["tried"] and meta["stopped"] == cpu_meta["stopped"]
-        assert meta["backend"] == {"name": "warp", "device_rollouts": 12} and "backend" not in cpu_meta
+        assert meta["backend"] == "warp" and meta["device_rollouts"] == 12 and "backend" not in cpu_meta
