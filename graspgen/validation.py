@@ -119,8 +119,8 @@ def check_int(name: str, value: Any, *, low: int | None = None, high: int | None
 
 
 def check_positive_int(name: str, value: Any) -> int:
-    """An integer >= 1 as a Python int; raises :class:`SettingsError` ``"name: must be a positive integer, got 0"`` (also
-    for bools and floats)."""
+    """An integer >= 1 as a Python int; raises :class:`SettingsError` ``"name: must be a positive integer, got 0"``
+    (also for bools and floats)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 1:
         raise SettingsError(f"{name}: must be a positive integer, got {value!r}")
     return int(value)
@@ -269,8 +269,8 @@ def check_transforms(name: str, T: Any, *, allow_single: bool = False) -> np.nda
 
 
 def settings_dict(settings: Any) -> Any:
-    """Plain (JSON-able) form of a settings dataclass (dataclasses and mappings -> dicts, tuples -> lists): the provenance
-    the library stores in the files it writes."""
+    """Plain (JSON-able) form of a settings dataclass (dataclasses and mappings -> dicts, tuples -> lists): the
+    provenance the library stores in the files it writes."""
     if dataclasses.is_dataclass(settings) and not isinstance(settings, type):
         return {f.name: settings_dict(getattr(settings, f.name)) for f in dataclasses.fields(settings)}
     if isinstance(settings, (tuple, list)):

@@ -106,8 +106,8 @@ class DatasetParams:
     """Rows per Parquet row group, about: whole scenes are packed into a group until the next would pass this (a
     larger scene gets a group of its own)."""
     acronym: bool = True
-    """Also export each object's grasps as an ACRONYM file (acronym/<object>.h5) with its mesh as OBJ: its object-centric
-    set when the object_grasps stage ran, else its scene grasps."""
+    """Also export each object's grasps as an ACRONYM file (acronym/<object>.h5) with its mesh as OBJ: its
+    object-centric set when the object_grasps stage ran, else its scene grasps."""
     graspgen: bool = True
     """Also export the object-centric sets in GraspGen's dataset layout (graspgen/: splits and one JSON per
     object; :mod:`graspgen.io.nvidia_graspgen`)."""
@@ -255,7 +255,8 @@ class DatasetStage(GraspStage):
 
     def publish(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> list[str]:
         """Lay out ``dest/dataset``, or repair it against the publish record when it already shows this shard (damaged
-        links remade, stray files removed, any other damaged file lays the folder out again); returns what it repaired."""
+        links remade, stray files removed, any other damaged file lays the folder out again); returns what it
+        repaired."""
         if "dataset" not in shards.ids(self.name):
             return []  # the task failed: leave the last good folder as it is
         entry = shards.entry(self.name, "dataset")
@@ -392,8 +393,8 @@ def config_yaml(sections: Mapping[str, Any]) -> str:
 
 
 def make_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, Any], settings: CardSettings) -> dict:
-    """The card of the dataset folder ``root``: statistics, plots (when ``settings.plots``), ``card.json`` / ``card.md``;
-    ``files`` maps data files (relative path) to sha256 and bytes. Returns what card.json holds."""
+    """The card of the dataset folder ``root``: statistics, plots (when ``settings.plots``), ``card.json`` /
+    ``card.md``; ``files`` maps data files (relative path) to sha256 and bytes. Returns what card.json holds."""
     stats, table = card_stats(root, files, settings)
     files = dict(files)
     plots = draw_plots(root, table, stats, settings) if settings.plots else []
@@ -403,9 +404,9 @@ def make_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, Any
 
 
 def report(path: str | Path) -> Path:
-    """Render ``card.md``, ``card.json`` and the plots of a published dataset again; returns the card.md path. What the data
-    cannot tell (keys, config, versions, hashes) comes from the existing ``card.json``, so an intact folder gets its
-    published card, byte for byte.
+    """Render ``card.md``, ``card.json`` and the plots of a published dataset again; returns the card.md path. What the
+    data cannot tell (keys, config, versions, hashes) comes from the existing ``card.json``, so an intact folder gets
+    its published card, byte for byte.
 
     Raises
     ------

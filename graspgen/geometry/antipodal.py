@@ -105,13 +105,14 @@ class AntipodalParams:
     approaching (``width_margin / 2`` of clearance per side where the stroke allows)."""
     min_clearance: float = 0.01
     """Smallest opening beyond the contact width (m, in ``[0, width_margin]``): pairs with ``width + min_clearance <=
-    gripper.max_width`` are kept, so a wide object is still graspable although ``width + width_margin`` exceeds the stroke."""
+    gripper.max_width`` are kept, so a wide object is still graspable although ``width + width_margin`` exceeds the
+    stroke."""
     surface_offset: float = 1e-5
     """How far (m, > 0) inside the surface each ray starts, so that it does not hit its own face; widths below it are
     rejected as too small."""
     num_depths: int = 3
-    """Grasp depths per oriented contact pair (>= 1), evenly spaced in ``[0, pad_length / 2 - depth_margin]`` (1: the TCP
-    at the contacts' midpoint). Why 3: docs/decisions/2026-11-22-grasp-depths.md."""
+    """Grasp depths per oriented contact pair (>= 1), evenly spaced in ``[0, pad_length / 2 - depth_margin]`` (1: the
+    TCP at the contacts' midpoint). Why 3: docs/decisions/2026-11-22-grasp-depths.md."""
     depth_margin: float = 0.005
     """Smallest distance (m, >= 0) between the contact line and the pad tips at the largest depth, so the pads
     still cover the contact with some face to spare (docs/decisions/2026-11-22-grasp-depths.md)."""
@@ -177,8 +178,8 @@ def _frozen(array: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class AntipodalCandidates:
-    """``n`` antipodal grasp candidates on one object; arrays read-only, row ``i`` of each is candidate ``i``, in runs of
-    at most ``num_orientations * num_depths`` sharing a contact pair (``ray_index``), increasing."""
+    """``n`` antipodal grasp candidates on one object; arrays read-only, row ``i`` of each is candidate ``i``, in runs
+    of at most ``num_orientations * num_depths`` sharing a contact pair (``ray_index``), increasing."""
 
     p1: np.ndarray
     """``(n, 3) float64`` first contact (m, object frame): the surface point the ray started from; the left pad's
@@ -227,7 +228,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors ``(a, b)`` with ``(a, b, axis)`` right-handed orthonormal, for unit ``axis (m, 3)``; deterministic."""
+    """Two unit vectors ``(a, b)`` with ``(a, b, axis)`` right-handed orthonormal, for unit ``axis (m, 3)``;
+    deterministic."""
     e = np.zeros_like(axis)
     e[np.arange(len(axis)), np.argmin(np.abs(axis), axis=1)] = 1.0
     a = _unit(np.cross(axis, e))

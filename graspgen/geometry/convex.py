@@ -118,9 +118,9 @@ class CoacdParams:
     otherwise; ``"auto"``, ``"on"`` and ``"off"`` are passed to CoACD. Another value raises :class:`SettingsError`."""
 
     slack_p95: float = 1e-3
-    """Hull-slack criterion in m (p95 of how far the parts stand out of the surface, :func:`hull_slack`; half the fingers'
-    2 mm touch allowance): a near-convex mesh whose hull meets it is not decomposed, a decomposition meeting it is not
-    refined."""
+    """Hull-slack criterion in m (p95 of how far the parts stand out of the surface, :func:`hull_slack`; half the
+    fingers' 2 mm touch allowance): a near-convex mesh whose hull meets it is not decomposed, a decomposition meeting it
+    is not refined."""
 
     near_convex_excess: float = 0.05
     """A watertight mesh whose convex hull exceeds its volume by at most this fraction is tested as near-convex:
@@ -192,8 +192,8 @@ def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tup
 
 def _refined(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, closed: bool, pieces: list[ConvexPart],
              first: tuple[list[ConvexPart], float], params: CoacdParams) -> list[ConvexPart]:
-    """The parts of lower slack of ``first`` (parts, slack p95) and the refinement tries (rough pieces recut, or the whole
-    mesh cut at a quarter or half of the threshold, or the pieces merged again), each merged down to four times
+    """The parts of lower slack of ``first`` (parts, slack p95) and the refinement tries (rough pieces recut, or the
+    whole mesh cut at a quarter or half of the threshold, or the pieces merged again), each merged down to four times
     ``max_convex_hull``."""
     cap = -1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull
     tries = {"first": first}

@@ -59,8 +59,8 @@ at commit a56d518: ``franka_panda``, ``robotiq_2f_85``, ``robotiq_2f_140``, ``si
 GRASPGEN_GRIPPER_SIZES = {"franka_panda": (0.10537486, 0.10527314)}
 """GraspGen's ``width`` and ``depth`` (m) of the grippers whose config has them (``config/grippers/franka_panda.yaml``
 lines 22-23 at commit a56d518; ``robotiq_2f_85.yaml`` has neither): what GraspGen derives its control points and tool
-point from (docs/format.md, "NVIDIA GraspGen layout"). Written as the JSON's ``gripper.width`` / ``gripper.depth``; a gripper not
-listed gets our ``max_width`` and ``tcp_offset`` there, the values a GraspGen config for it should have."""
+point from (docs/format.md, "NVIDIA GraspGen layout"). Written as the JSON's ``gripper.width`` / ``gripper.depth``; a
+gripper not listed gets our ``max_width`` and ``tcp_offset`` there, the values a GraspGen config for it should have."""
 
 _OUR_NAME = {"franka_panda": "panda", "robotiq_2f_85": "robotiq_2f85"}
 """GraspGen's folder name -> our gripper, for files without ``gripper.source_gripper``."""

@@ -275,9 +275,9 @@ class GraspDataset:
         self, object_name: str | Sequence[str] | None = None, columns: Sequence[str] | None = None,
         filter: pc.Expression | None = None, **where: Any,
     ) -> pa.Table:
-        """Rows of the object-centric sets (``object_grasps.parquet`` or a folder ``object_grasps/`` of that schema), sorted by
-        object; ``object_name`` reads only the row groups or files whose statistics can hold it; ``columns``, ``filter``,
-        ``**where`` as in :meth:`grasps`.
+        """Rows of the object-centric sets (``object_grasps.parquet`` or a folder ``object_grasps/`` of that schema),
+        sorted by object; ``object_name`` reads only the row groups or files whose statistics can hold it; ``columns``,
+        ``filter``, ``**where`` as in :meth:`grasps`.
 
         Raises
         ------
@@ -353,9 +353,9 @@ class GraspDataset:
         filter: pc.Expression | None = None,
         **where: Any,
     ) -> Iterator[Sample]:
-        """``(scene, view, grasps)`` samples, scene by scene (one row group in memory at a time), for ``views`` (default all);
-        ``columns`` to carry beside ``pose_world`` and the ids; ``filter``, ``**where`` as in :meth:`grasps`. Scenes without
-        a matching grasp are skipped."""
+        """``(scene, view, grasps)`` samples, scene by scene (one row group in memory at a time), for ``views`` (default
+        all); ``columns`` to carry beside ``pose_world`` and the ids; ``filter``, ``**where`` as in :meth:`grasps`.
+        Scenes without a matching grasp are skipped."""
         import pyarrow.dataset as pads
 
         expr = self._expression(filter, where)
@@ -408,8 +408,8 @@ class _TorchSamples:
 
     Item ``i`` is one (scene, view) with matching grasps (``**where`` as in :meth:`GraspDataset.grasps`), a dict:
     ``points`` (N, 3) float32 and ``point_ids`` (N,) int64 in ``frame`` (``"camera"`` or ``"world"``), ``poses``
-    (m, 4, 4) float32 in ``frame``, one (m,) float32 tensor per column of ``labels`` (nulls NaN), ``scene_id``, ``view``.
-    Sizes vary per item: batch with ``collate_fn=list`` (or pad).
+    (m, 4, 4) float32 in ``frame``, one (m,) float32 tensor per column of ``labels`` (nulls NaN), ``scene_id``,
+    ``view``. Sizes vary per item: batch with ``collate_fn=list`` (or pad).
     """
 
     def __init__(

@@ -146,8 +146,8 @@ def _force_closure(w: np.ndarray) -> bool:
 
 
 def force_closure_from_wrenches(wrenches) -> bool:
-    """Whether the origin is strictly inside the convex hull of ``wrenches`` (6, n): rank 6 and a margin LP over strictly
-    positive weights ``lambda`` with ``W lambda = 0`` (``t* > LP_MARGIN_TOL``); no hull.
+    """Whether the origin is strictly inside the convex hull of ``wrenches`` (6, n): rank 6 and a margin LP over
+    strictly positive weights ``lambda`` with ``W lambda = 0`` (``t* > LP_MARGIN_TOL``); no hull.
 
     Raises
     ------
@@ -169,8 +169,8 @@ def force_closure(
     num_cone_edges=8,
     torsional_friction=0.0,
 ) -> bool:
-    """Whether the grasp is in force closure, by the linear program of :func:`force_closure_from_wrenches`; parameters as in
-    :func:`~graspgen.quality.wrench.grasp_matrix`. Raises :class:`SettingsError` on a bad argument."""
+    """Whether the grasp is in force closure, by the linear program of :func:`force_closure_from_wrenches`; parameters
+    as in :func:`~graspgen.quality.wrench.grasp_matrix`. Raises :class:`SettingsError` on a bad argument."""
     return _force_closure(
         _checked_wrenches(points, normals, center_of_mass, friction, torque_scale, num_cone_edges, torsional_friction)
     )

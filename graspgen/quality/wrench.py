@@ -135,8 +135,8 @@ def tangent_basis(normals) -> tuple[np.ndarray, np.ndarray]:
 
 
 def friction_cone_edges(normals, friction, num_cone_edges=8) -> np.ndarray:
-    """Edges of the polyhedral friction cone at each contact (vertices on the true cone): (k, m, 3) float forces per unit
-    normal force, each with ``|f_ij| = sqrt(1 + mu^2)``, for unit ``normals`` (k, 3) pointing into the object,
+    """Edges of the polyhedral friction cone at each contact (vertices on the true cone): (k, m, 3) float forces per
+    unit normal force, each with ``|f_ij| = sqrt(1 + mu^2)``, for unit ``normals`` (k, 3) pointing into the object,
     ``friction`` mu > 0 and ``num_cone_edges`` m >= 3.
 
     Raises

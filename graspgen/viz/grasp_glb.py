@@ -176,8 +176,9 @@ def grasps_glb(
     grasp_ids: Any = None,
     name: str = "object",
 ) -> bytes:
-    """The GLB bytes of one object (mesh ``vertices`` (v, 3) m, ``faces`` (f, 3), at its mesh frame's origin) and a marker
-    per TCP pose ``T_tcp`` (n, 4, 4): :data:`SUCCESS_COLOUR` where ``success`` (n,), else :data:`FAILURE_COLOUR`."""
+    """The GLB bytes of one object (mesh ``vertices`` (v, 3) m, ``faces`` (f, 3), at its mesh frame's origin) and a
+    marker per TCP pose ``T_tcp`` (n, 4, 4): :data:`SUCCESS_COLOUR` where ``success`` (n,), else
+    :data:`FAILURE_COLOUR`."""
     flags = np.asarray(success).reshape(-1)
     if flags.dtype != np.bool_ and not (flags.dtype.kind in "iu" and np.isin(flags, (0, 1)).all()):
         raise SettingsError(f"success: must be booleans (or 0/1), got {flags.dtype}")
@@ -203,8 +204,8 @@ def object_set_glb(record: ObjectRecord, grasps: pa.Table, *, n: int | None = No
 def scene_glb(scene: SceneRecord, objects: Callable[[str], ObjectRecord], grasps: pa.Table,
               rollouts: pa.Table | None = None, *, n: int | None = None,
               gripper: GripperSpec | str | None = None) -> bytes:
-    """The GLB bytes of a scene in its world frame: the table top (top at z = 0), the objects at their settled poses, and
-    at most ``n`` markers at the grasps' world poses coloured by rollout outcome (by pre-filter code without
+    """The GLB bytes of a scene in its world frame: the table top (top at z = 0), the objects at their settled poses,
+    and at most ``n`` markers at the grasps' world poses coloured by rollout outcome (by pre-filter code without
     ``rollouts``), in the colours of :data:`graspgen.viz.grasp_view.LABELS`; ``objects`` maps a name to its record.
 
     Raises

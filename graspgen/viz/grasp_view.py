@@ -306,8 +306,8 @@ def grasp_picture(
     scale: int = 3,
     gripper: GripperSpec | None = None,
 ) -> Image.Image:
-    """The scene's RGB view ``view`` with up to ``n`` grasp markers coloured by label and a legend below: a PIL RGB image
-    of ``(W scale, H scale + legend)``. ``gripper`` sizes the markers (default the table's gripper).
+    """The scene's RGB view ``view`` with up to ``n`` grasp markers coloured by label and a legend below: a PIL RGB
+    image of ``(W scale, H scale + legend)``. ``gripper`` sizes the markers (default the table's gripper).
 
     Raises
     ------
