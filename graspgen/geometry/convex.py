@@ -60,10 +60,8 @@ _HALF_CUT_PIECES = 4
 # the share the p95 criterion allows the whole union, asked of each piece.
 _ROUGH_SHARE = 0.05
 
-# The refinement cuts the rough pieces alone, each a CoACD run on the mesh inside it, where they hold at most this share
-# of the first cut's area; beyond, the whole mesh is cut again. A cut costs about in proportion to the pieces it makes
-# (0.03-0.05 CPU s each), and these in proportion to the area it cuts at a given concavity, so the rough pieces alone
-# cost less where they are a minority of the area (``studies/rough_piece_refine.py``).
+# The refinement cuts the rough pieces alone where they hold at most this share of the first cut's area, else the whole
+# mesh again: cheaper while they are a minority (docs/decisions/2026-12-03-coacd-child-process.md).
 _ROUGH_AREA = 0.5
 
 
