@@ -1,16 +1,9 @@
 """Argument and settings checks shared by the whole grasp library.
 
-Every settings class validates itself in ``__post_init__`` with these helpers, and the library's functions check
-their arguments with them, so one kind of mistake gives one kind of message, always starting with the name of the
-offending setting or argument (a config loader prefixes the section path)::
-
-    friction: must be in (0, inf), got -1
-    shake_cycles: must be an integer in [1, inf), got 0
-    rays_per_point: must be a positive integer, got 0
-    T_tcp[3]: the rotation block is not a proper rotation (orthonormal to 1e-05, det +1) (1 of 10 transforms)
-
-Every check raises :class:`~graspgen.errors.SettingsError`, which is also a ``ValueError``. Bools are never
-numbers here (``True`` is not a count of 1), and NaN or infinite numbers are rejected.
+Settings classes call them in ``__post_init__`` and functions on their arguments, so every mistake gives one kind of
+message, ``"<name>: must <what>, got <value>"`` (a config loader prefixes the section path), e.g.
+``shake_cycles: must be an integer in [1, inf), got 0``. Every check raises :class:`~graspgen.errors.SettingsError`
+(also a ``ValueError``); bools are never numbers, and NaN or infinite numbers are rejected.
 """
 
 from __future__ import annotations
@@ -42,29 +35,16 @@ __all__ = [
 ]
 
 POSE_TOL = 1e-5
-"""Largest deviation (per entry) of a rigid transform's rotation block from orthonormality, and of its last row
-from ``0 0 0 1``, that the pose checks accept. Poses read back from float32 storage are orthonormal only to
-~1e-7 per entry (and products of a few of them to a few times that), so 1e-5 accepts every stored pose while a
-scaled, sheared or garbage matrix is still far outside it."""
+"""Largest per-entry deviation of a rotation block from orthonormality, and of the last row from ``0 0 0 1``, that the
+pose checks accept: above float32 storage round-off (~1e-7), far below a scaled or sheared matrix."""
 
 _EYE3 = np.eye(3)
 _LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 def check(name: str, ok: bool, must: str, value: Any) -> None:
-    """Raise :class:`~graspgen.errors.SettingsError` ``"name: must ..., got value"`` unless ``ok``.
-
-    Parameters
-    ----------
-    name : str
-        The setting's name, as the user writes it in a config (a loader prefixes the section path).
-    ok : bool
-        The condition that must hold.
-    must : str
-        What the value must be, e.g. ``"be > 0"``.
-    value : Any
-        The offending value, echoed in the message.
-    """
+    """Raise :class:`~graspgen.errors.SettingsError` ``"name: must <must>, got <value>"`` unless ``ok``; ``name`` as the
+    user writes it in a config."""
     if not ok:
         raise SettingsError(f"{name}: must {must}, got {value!r}")
 
@@ -103,29 +83,15 @@ def check_number(
     low_open: bool = False,
     high_open: bool = False,
 ) -> float:
-    """A finite real number within ``[low, high]`` (either end open on request), as a Python float.
+    """A finite real number within ``[low, high]`` as a Python float; None bounds are unbounded, ``low_open`` /
+    ``high_open`` exclude a bound.
 
-    Parameters
-    ----------
-    name : str
-        Named first in the message.
-    value : Any
-        A Python or numpy real scalar (or a 0-d numeric array); bools are rejected.
-    low, high : float or None
-        Bounds; None leaves that side unbounded.
-    low_open, high_open : bool
-        Exclude the bound itself (``low_open=True`` with ``low=0`` means ``> 0``).
-
-    Returns
-    -------
-    float
-        ``float(value)``.
+    ``value`` may be a Python or numpy real scalar or a 0-d numeric array; bools are rejected.
 
     Raises
     ------
     SettingsError
-        ``"name: must be a number, got 'x'"``, ``"name: must be finite, got nan"`` or
-        ``"name: must be in (0, inf), got -1"``.
+        Not a number, not finite, or outside the interval (``"friction: must be in (0, inf), got -1"``).
     """
     if not _is_real(value):
         raise SettingsError(f"{name}: must be a number, got {value!r}")
@@ -138,21 +104,7 @@ def check_number(
 
 
 def check_int(name: str, value: Any, *, low: int | None = None, high: int | None = None) -> int:
-    """An integer (Python or numpy, not a bool, not a float such as ``2.0``) within ``[low, high]``.
-
-    Parameters
-    ----------
-    name : str
-        Named first in the message.
-    value : Any
-        The value to check.
-    low, high : int or None
-        Inclusive bounds; None leaves that side unbounded.
-
-    Returns
-    -------
-    int
-        ``int(value)``.
+    """An integer (Python or numpy; not a bool, not ``2.0``) within the inclusive ``[low, high]``, as a Python int.
 
     Raises
     ------
@@ -167,68 +119,30 @@ def check_int(name: str, value: Any, *, low: int | None = None, high: int | None
 
 
 def check_positive_int(name: str, value: Any) -> int:
-    """An integer >= 1 (a count of things that cannot be zero), as a Python int.
-
-    Returns
-    -------
-    int
-        ``int(value)``.
-
-    Raises
-    ------
-    SettingsError
-        ``"name: must be a positive integer, got 0"`` (also for bools and floats).
-    """
+    """An integer >= 1 as a Python int; raises :class:`SettingsError` ``"name: must be a positive integer, got 0"``
+    (also for bools and floats)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral) or value < 1:
         raise SettingsError(f"{name}: must be a positive integer, got {value!r}")
     return int(value)
 
 
 def check_bool(name: str, value: Any) -> bool:
-    """A bool (Python or numpy; not 0/1, not a string), as a Python bool.
-
-    Raises
-    ------
-    SettingsError
-        ``"name: must be a bool, got 1"``.
-    """
+    """A bool (Python or numpy; not 0/1, not a string) as a Python bool; else :class:`SettingsError`."""
     if not isinstance(value, (bool, np.bool_)):
         raise SettingsError(f"{name}: must be a bool, got {value!r}")
     return bool(value)
 
 
 def check_rng(name: str, value: Any) -> np.random.Generator:
-    """A ``numpy.random.Generator`` (not a seed, not the legacy ``RandomState``), returned as is.
-
-    Raises
-    ------
-    SettingsError
-        ``"rng: must be a numpy.random.Generator, got int"``.
-    """
+    """A ``numpy.random.Generator`` (not a seed, not ``RandomState``), returned as is; else :class:`SettingsError`."""
     if not isinstance(value, np.random.Generator):
         raise SettingsError(f"{name}: must be a numpy.random.Generator, got {type(value).__name__}")
     return value
 
 
 def check_instance(name: str, value: Any, cls: type, *, what: str | None = None) -> Any:
-    """An instance of ``cls``, returned as is.
-
-    Parameters
-    ----------
-    name : str
-        Named first in the message.
-    value : Any
-        The value to check.
-    cls : type
-        The class ``value`` must be an instance of.
-    what : str or None
-        How the message names the class (default ``cls.__name__``, e.g. ``"trimesh.Trimesh"`` to be clearer).
-
-    Raises
-    ------
-    SettingsError
-        ``"gripper: must be a GripperSpec, got str"``.
-    """
+    """An instance of ``cls``, returned as is; else :class:`SettingsError` ``"gripper: must be a GripperSpec, got str"``
+    (``what`` names the class in the message, default ``cls.__name__``)."""
     if not isinstance(value, cls):
         what = what or cls.__name__
         article = "an" if what[:1].lower() in "aeiou" else "a"
@@ -237,13 +151,8 @@ def check_instance(name: str, value: Any, cls: type, *, what: str | None = None)
 
 
 def check_choice(name: str, value: Any, choices: Collection[Any]) -> Any:
-    """One of ``choices`` (compared with ``==``), returned as is.
-
-    Raises
-    ------
-    SettingsError
-        ``"approach: must be one of above, hemisphere, any, got 'below'"`` (choices in the order given).
-    """
+    """One of ``choices`` (compared with ``==``), returned as is; else :class:`SettingsError` listing the choices in the
+    order given."""
     try:
         ok = value in choices
     except TypeError:  # an unhashable value tested against a set or dict
@@ -255,30 +164,12 @@ def check_choice(name: str, value: Any, choices: Collection[Any]) -> Any:
 
 def check_vector(name: str, value: Any, size: int, *, low: float | None = None,
                  low_open: bool = False) -> tuple[float, ...]:
-    """``size`` finite numbers (any array-like, flattened), each ``>= low`` (``> low`` with ``low_open``).
-
-    Parameters
-    ----------
-    name : str
-        Named first in the message.
-    value : array-like, (size,)
-        The numbers (a nested sequence is flattened).
-    size : int
-        How many numbers.
-    low : float or None
-        Lower bound of every entry; None: unbounded.
-    low_open : bool
-        Exclude the bound itself.
-
-    Returns
-    -------
-    tuple of float, (size,)
+    """``size`` finite numbers (any array-like, flattened), each ``>= low`` (``> low`` with ``low_open``), as a tuple.
 
     Raises
     ------
     SettingsError
-        ``"pad_size: must be 3 finite numbers, got (0.01, 0.02)"`` or
-        ``"pad_size: every entry must be in (0, inf), got (0.01, -0.02, 0.03)"``.
+        Wrong count, a non-finite entry, or an entry below ``low`` (``"pad_size: must be 3 finite numbers, ..."``).
     """
     try:
         arr = np.asarray(value, dtype=float).reshape(-1)
@@ -292,26 +183,12 @@ def check_vector(name: str, value: Any, size: int, *, low: float | None = None,
 
 
 def check_range(name: str, value: Any, *, low: float | None = None, high: float | None = None) -> tuple[float, float]:
-    """A ``[min, max]`` pair of numbers with ``min <= max``, lying in ``[low, high]``.
-
-    Parameters
-    ----------
-    name : str
-        Named first in the message.
-    value : sequence of 2 numbers
-        The pair.
-    low, high : float or None
-        Inclusive bounds of both ends; None leaves that side unbounded.
-
-    Returns
-    -------
-    (float, float)
+    """A ``[min, max]`` pair of numbers with ``min <= max``, both within the inclusive ``[low, high]``, as floats.
 
     Raises
     ------
     SettingsError
-        ``"distance: must be [min, max] with min <= max, got (0.8, 0.5)"`` or
-        ``"elevation: must lie in [-1.5708, 1.5708], got (0.2, 2.0)"``.
+        ``"distance: must be [min, max] with min <= max, got (0.8, 0.5)"`` or ``"elevation: must lie in [...]"``.
     """
     try:
         pair = tuple(value)
@@ -350,27 +227,13 @@ def _rigid_faults(T: np.ndarray) -> tuple[str, np.ndarray] | None:
 
 
 def check_transform(name: str, T: Any) -> np.ndarray:
-    """One rigid transform: a finite ``(4, 4)`` matrix whose rotation block is a proper rotation (orthonormal to
-    :data:`POSE_TOL` per entry, determinant > 0) and whose last row is ``0 0 0 1`` (to :data:`POSE_TOL`).
-
-    Parameters
-    ----------
-    name : str
-        Named first in the message.
-    T : array-like, (4, 4)
-        The transform.
-
-    Returns
-    -------
-    (4, 4) float64
-        ``numpy.asarray(T, dtype=float64)`` (no copy when it already is one).
+    """One rigid transform as a (4, 4) float64 array (no copy when it is one): finite, rotation block orthonormal to
+    :data:`POSE_TOL` with determinant > 0, last row ``0 0 0 1``.
 
     Raises
     ------
     SettingsError
-        ``"object_pose: must have shape (4, 4), got shape (3, 3)"``, ``"object_pose: must be finite"``,
-        ``"object_pose: the rotation block is not a proper rotation (orthonormal to 1e-05, det +1)"`` or
-        ``"object_pose: the last row must be 0 0 0 1"``.
+        Wrong shape, not finite, not a proper rotation, or a bad last row.
     """
     arr = _as_float_array(name, T)
     if arr.shape != (4, 4):
@@ -382,28 +245,14 @@ def check_transform(name: str, T: Any) -> np.ndarray:
 
 
 def check_transforms(name: str, T: Any, *, allow_single: bool = False) -> np.ndarray:
-    """A stack of rigid transforms, each as :func:`check_transform` requires.
-
-    Parameters
-    ----------
-    name : str
-        Named first in the message, with the index of the first bad transform (``T_tcp[3]: ...``).
-    T : array-like, (n, 4, 4), or (4, 4) with ``allow_single``
-        The transforms (``n = 0`` is fine).
-    allow_single : bool
-        Also accept one ``(4, 4)`` transform, returned as a stack of one.
-
-    Returns
-    -------
-    (n, 4, 4) float64
-        ``numpy.asarray(T, dtype=float64)`` (no copy when it already is one; a single transform gets a new axis).
+    """A stack of rigid transforms as (n, 4, 4) float64 (``n = 0`` is fine), each as :func:`check_transform` requires;
+    ``allow_single`` also takes one (4, 4) transform and returns a stack of one.
 
     Raises
     ------
     SettingsError
-        ``"T_tcp: must have shape (n, 4, 4), got shape (3, 3)"``, or for the first bad transform e.g.
-        ``"T_tcp[3]: the rotation block is not a proper rotation (orthonormal to 1e-05, det +1) (2 of 10
-        transforms)"`` (likewise ``must be finite`` and ``the last row must be 0 0 0 1``).
+        Wrong shape, or for the first bad transform e.g. ``"T_tcp[3]: the rotation block is not a proper rotation
+        (orthonormal to 1e-05, det +1) (2 of 10 transforms)"``.
     """
     arr = _as_float_array(name, T)
     if allow_single and arr.ndim == 2:
@@ -420,9 +269,8 @@ def check_transforms(name: str, T: Any, *, allow_single: bool = False) -> np.nda
 
 
 def settings_dict(settings: Any) -> Any:
-    """Plain (JSON-able) form of a settings dataclass: dataclasses -> dicts, tuples -> lists, any mapping (a
-    config loader may hand in read-only ``MappingProxyType``\\s, which :func:`dataclasses.asdict` cannot copy)
-    -> dict. What the library stores as provenance in the files it writes."""
+    """Plain (JSON-able) form of a settings dataclass (dataclasses and mappings -> dicts, tuples -> lists): the
+    provenance the library stores in the files it writes."""
     if dataclasses.is_dataclass(settings) and not isinstance(settings, type):
         return {f.name: settings_dict(getattr(settings, f.name)) for f in dataclasses.fields(settings)}
     if isinstance(settings, (tuple, list)):

@@ -1,58 +1,13 @@
 """Stage 7, ``dataset``: the per-scene shards merged into the published dataset with its card.
 
-One task (``dataset``) reads the per-scene tables of the table stages (:data:`graspgen.io.dataset_table.TABLES`:
-``grasps``, ``rollouts``, ``robustness``, ``metrics``) and joins them on ``(scene_id, grasp_id)``
-(:func:`graspgen.io.dataset_table.join_scene`): one row per grasp of the grasps table, plus every column of each
-other table except the join keys (a table without a row for a grasp leaves nulls there; a column name already taken
-gets its stage's name as a prefix; the few renames of :data:`graspgen.io.dataset_table.RENAMES` make generic names
-specific). Scenes are sorted by id and grasps by id within a scene. Only scenes with a shard in every table stage
-are included; the others are named in the manifest meta and in the card. The task's shard is that table, written
-deterministically (zstd level 3, dictionary-encoded strings, statistics on; no timestamps) with row groups that hold
-whole scenes, packed up to ``dataset.row_group_rows`` rows: a reader that wants one scene touches one row group, and
-the footer stays small with many scenes (one row group per scene would make it grow with every scene). The shards
-are read one scene at a time, in scene id order, and written as row groups fill
-(:class:`graspgen.io.row_groups.GroupedParquetWriter`): the task holds one row group, not the table, and so do the
-object-set tasks (one shard at a time, by task id). The card's statistics are running counts over the published
-files' row groups (:mod:`graspgen.io.card_tally`), its label figures exact up to a cap of rows and past it streamed
-or taken from a deterministic sample, as the card says (:mod:`graspgen.io.card_labels`), and ``gen validate`` checks
-the table one row group at a time.
-
-After the task has been committed, :meth:`DatasetStage.publish` lays out ``OUT/dataset/`` (each file atomically;
-shards as hard links, copies where links are not possible)::
-
-    grasps.parquet          the merged table: the dataset shard
-    scenes/<scene_id>.h5    the scene shards of the included scenes (cameras, images, clouds, object poses)
-    objects/<name>.h5       the object shards of the library (mesh, convex parts, mass properties, stable poses)
-    acronym/<name>.h5       each object's grasps as an ACRONYM grasp file (:mod:`graspgen.io.acronym`), rows in
-                            grasps.parquet order; its mesh as acronym/meshes/<name>.obj (the file's object/file)
-    graspgen/               the object sets in GraspGen's layout (:mod:`graspgen.io.nvidia_graspgen`)
-    contact_graspnet/       the scenes as Contact-GraspNet's training data (:mod:`graspgen.io.contact_graspnet`)
-    plots/*.png             outcomes, robustness, epsilon, correlation (label columns present), examples
-    probe/model.pt          the learnability probe's grasp evaluator (when the probe stage ran); probe/report.json
-                            its held-out scores, which the card renders (:mod:`graspgen.io.card_learn`)
-    config.yaml             the resolved config: every stage section with its comments (``run`` left out)
-    card.json, card.md      counts per object and outcome, label summaries, histograms and correlations, the
-                            schema, every file's sha256, every stage's shard keys, package versions, the config
-
-and nothing else: the engine's shards and manifest of this stage are in ``OUT/shards/dataset/``, so copying or archiving
-``OUT/dataset`` hands over exactly the published files. The card is :mod:`graspgen.io.card`
-(statistics :mod:`graspgen.io.card_stats`, text :mod:`graspgen.io.card_render`) with the plots of
-:mod:`graspgen.viz.plots`, drawn here (:func:`make_card`); :func:`report` renders both again from a published folder
-(``gen report``); :func:`validate` checks a folder against the manifests, the card's hashes and the schema (``gen
-validate``). Read a dataset with :func:`graspgen.io.reader.open_dataset`.
-
-The folder heals. Publish keeps a record of every file it laid out (size, mtime, inode, sha256; for a shard's link
-its shard) in ``OUT/shards/dataset/published.json`` and every run checks the folder against it, fast
-(:func:`graspgen.io.publish_check.check_published`: a link is intact when it is its verified shard's inode with
-its size, any other file when its size, mtime and inode are unchanged, else its sha256 decides): a damaged or
-missing link is made again (a damaged shard is remade by its stage first: the run checks shards by sha256), a stray
-file in the dataset's folders is removed, and a damaged or missing file of any other kind (plots, ACRONYM files, the
-card) lays the folder out again. ``gen status`` runs the same check (:meth:`DatasetStage.publish_status`) and
-names each file the run will replace. Only ``gen validate`` reads every byte. The card also lists the run's
-warnings (unit guesses and repairs of meshes, objects left out and why, objects the gripper cannot grasp), given to
-publish by the engine.
-
-The columns of ``grasps.parquet`` (their types and meanings) are listed in :mod:`graspgen.io.dataset_table`.
+One task joins the per-scene tables of :data:`graspgen.io.dataset_table.TABLES` on ``(scene_id, grasp_id)``
+(:func:`graspgen.io.dataset_table.join_scene`), scene by scene in id order, into row groups of whole scenes
+(:class:`graspgen.io.row_groups.GroupedParquetWriter`), so the task holds one row group, not the table; only scenes
+with a shard in every table stage are included. Each object-set stage is one more task. After the commit,
+:meth:`DatasetStage.publish` lays out ``OUT/dataset/`` (layout, and how the folder heals: docs/format.md,
+"The published dataset"), with the card of :mod:`graspgen.io.card` and the plots of :mod:`graspgen.viz.plots`
+(:func:`make_card`); :func:`report` renders them again (``gen report``), :func:`validate` checks a folder
+(``gen validate``). The columns are listed in :mod:`graspgen.io.dataset_table`.
 """
 
 from __future__ import annotations
@@ -121,8 +76,7 @@ object-centric grasp sets, by object) and ``placed_grasps.parquet`` (those sets 
 OBJECT_SET_META = ("tried", "positives", "negatives", "target_positives", "target_negatives", "reached", "selection",
                    "label", "target_grasps", "positive_rate", "collisions_dropped", "friction")
 """Keys of an object-grasps task's manifest meta kept in ``object_grasps.parquet``'s metadata (under
-:data:`graspgen.io.dataset_table.META_KEY`, ``"tasks"``): how far each object's set got. Timings are left out: they
-would make the bytes differ between runs."""
+:data:`graspgen.io.dataset_table.META_KEY`); timings are left out so the bytes do not differ between runs."""
 
 PROBE = "probe"
 """The learnability probe's stage (:mod:`stages.probe`); PROBE_TASK is its one task."""
@@ -132,9 +86,8 @@ PROVENANCE_STAGE = "rollouts"
 """``source_key`` holds the key of this stage's shard of the scene (the last table stage when it is not joined)."""
 
 PUBLISH_RECORD = "published.json"
-"""The publish step's record of the files it laid out (:mod:`graspgen.io.publish_check`):
-``OUT/shards/dataset/published.json``, with the engine's files of the stage (it describes files on one disk, not
-the data, so it is not part of the dataset)."""
+"""The publish record (:mod:`graspgen.io.publish_check`), ``OUT/shards/dataset/published.json``: it describes files on
+one disk, so it lives with the engine's files, not in the dataset."""
 
 CARD_FILES = ("card.json", "card.md")
 """Published files that card.json does not list (itself and its rendering)."""
@@ -153,15 +106,13 @@ class DatasetParams:
     """Rows per Parquet row group, about: whole scenes are packed into a group until the next would pass this (a
     larger scene gets a group of its own)."""
     acronym: bool = True
-    """Also export each object's grasps as an ACRONYM grasp file (acronym/<object>.h5) with its mesh as OBJ: its
-    object-centric set (free-space labels, ACRONYM's meaning) when the object_grasps stage ran, else its scene
-    grasps."""
+    """Also export each object's grasps as an ACRONYM file (acronym/<object>.h5) with its mesh as OBJ: its
+    object-centric set when the object_grasps stage ran, else its scene grasps."""
     graspgen: bool = True
     """Also export the object-centric sets in GraspGen's dataset layout (graspgen/: splits and one JSON per
     object; :mod:`graspgen.io.nvidia_graspgen`)."""
     contact_graspnet: bool = True
-    """Also export the scenes as Contact-GraspNet's training data (contact_graspnet/: one .npz of grasp contacts per
-    scene, the meshes, the splits; the placed object-centric grasps when the object sets ran, else the scene grasps;
+    """Also export the scenes as Contact-GraspNet's training data (contact_graspnet/: per-scene .npz, meshes, splits;
     :mod:`graspgen.io.contact_graspnet`)."""
     card: CardSettings = dataclasses.field(default_factory=CardSettings, metadata={FLATTEN: True})
     """The card and its plots (:class:`graspgen.io.card_stats.CardSettings`: ``plots``, ``histogram_bins``,
@@ -176,12 +127,8 @@ class DatasetParams:
 
 @dataclasses.dataclass(frozen=True)
 class DatasetTaskParams:
-    """What the ``dataset`` task and its publish step see: its own section and the resolved config.
-
-    The engine gives a stage its ``params(config)`` only, and the card must show the whole config. Every section
-    but ``run`` already shapes the upstream keys, so carrying them here re-runs nothing that would not re-run
-    anyway; ``run`` (output folder, workers, backend) never enters a key, so it is left out.
-    """
+    """What the ``dataset`` task and its publish step see: its own section and the resolved config (the card shows it
+    all); ``run`` is left out because it never enters a key."""
 
     dataset: DatasetParams
     """The ``dataset`` section."""
@@ -307,14 +254,9 @@ class DatasetStage(GraspStage):
         return {"rows": rows, "tasks": len(ids)}
 
     def publish(self, params: DatasetTaskParams, shards: Upstream, dest: Path) -> list[str]:
-        """Lay out ``dest/dataset`` (module docstring), or repair it when it already shows this shard.
-
-        Every run checks the folder fast against the publish record (:func:`graspgen.io.publish_check.
-        check_published`: a file linked to its shard by inode and size, any other by size, mtime and inode):
-        damaged or missing links are made again, stray files in the dataset's folders removed, and a damaged file
-        of any other kind (plots, ACRONYM files, the card) makes the whole folder again. Returns what it repaired
-        (nothing for a new dataset or an intact folder).
-        """
+        """Lay out ``dest/dataset``, or repair it against the publish record when it already shows this shard (damaged
+        links remade, stray files removed, any other damaged file lays the folder out again); returns what it
+        repaired."""
         if "dataset" not in shards.ids(self.name):
             return []  # the task failed: leave the last good folder as it is
         entry = shards.entry(self.name, "dataset")
@@ -451,11 +393,8 @@ def config_yaml(sections: Mapping[str, Any]) -> str:
 
 
 def make_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, Any], settings: CardSettings) -> dict:
-    """The card of the dataset folder ``root``: its statistics, its plots (when ``settings.plots``) and
-    ``card.json`` / ``card.md`` (:mod:`graspgen.io.card`); returns what card.json holds.
-
-    ``files`` lists the data files (relative path -> sha256 and bytes); the plots are added to the card's list.
-    """
+    """The card of the dataset folder ``root``: statistics, plots (when ``settings.plots``), ``card.json`` /
+    ``card.md``; ``files`` maps data files (relative path) to sha256 and bytes. Returns what card.json holds."""
     stats, table = card_stats(root, files, settings)
     files = dict(files)
     plots = draw_plots(root, table, stats, settings) if settings.plots else []
@@ -465,17 +404,14 @@ def make_card(root: Path, provenance: Mapping[str, Any], files: Mapping[str, Any
 
 
 def report(path: str | Path) -> Path:
-    """Render ``card.md``, ``card.json`` and the plots of a published dataset again; returns the card.md path.
-
-    The statistics and plots come from the data files; what the data cannot tell (keys, config, package versions,
-    the data files' hashes) is taken from the existing ``card.json``. So on an intact folder the result is the
-    published card, byte for byte.
+    """Render ``card.md``, ``card.json`` and the plots of a published dataset again; returns the card.md path. What the
+    data cannot tell (keys, config, versions, hashes) comes from the existing ``card.json``, so an intact folder gets
+    its published card, byte for byte.
 
     Raises
     ------
     graspgen.errors.InputError
-        No dataset there; card.json unreadable or incomplete; a data file it lists missing, of another size
-        (truncated) or unreadable. The message names the file.
+        No dataset there; card.json unreadable or incomplete; a data file missing, truncated or unreadable.
     """
     sources = card_sources(path)
     root = sources.root
@@ -507,14 +443,9 @@ def _check_shards(run_root: Path) -> tuple[list[str], int]:
 
 
 def validate(path: str | Path) -> tuple[list[str], int]:
-    """Check a published dataset (and, when ``path`` is a run folder, every stage's shards).
-
-    Checks: every manifest entry's shard exists with its recorded size and sha256; every file listed in
-    ``card.json`` exists with its sha256 and no other file sits in the dataset's folders; grasps.parquet has the
-    schema of the card and the required columns and types (:data:`graspgen.io.dataset_table.REQUIRED_SCHEMA`),
-    rows sorted and unique by (scene_id, grasp_id), outcome codes and names that agree, labels in range, rigid
-    poses; every scene and object it names has its file (:func:`graspgen.io.dataset_table.check_table`); card.md is
-    the rendering of card.json (:func:`graspgen.io.publish_check.check_folder`).
+    """Check a published dataset (and, when ``path`` is a run folder, every stage's shards): shard sizes and sha256s,
+    the card's files and no others, the table's schema, sort order and labels and the files it names
+    (:func:`graspgen.io.dataset_table.check_table`), card.md rendered from card.json.
 
     Returns
     -------

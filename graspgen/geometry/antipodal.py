@@ -1,59 +1,22 @@
 """Antipodal grasp candidates on a triangle mesh: pure geometry (numpy + trimesh rays), usable from a notebook.
 
-Algorithm (ARCHITECTURE.md, One grasp's path, step 3), one call of :func:`sample_antipodal`:
+One call of :func:`sample_antipodal`:
 
-1. **Surface points.** ``num_surface_points`` points uniformly by area on the mesh: a face is drawn with
-   probability proportional to its area, then a uniform barycentric point in it (both from ``rng``; trimesh's own
-   sampler is not used so that every random number comes from the one generator, in a fixed order). Each point
-   ``p1`` has the inward normal ``n1 = -face normal`` (the direction a finger pushes).
-2. **Friction-cone rays.** ``rays_per_point`` directions ``d`` uniform (by solid angle) inside the cone of
-   half-angle ``atan(mu)`` about ``n1``.
-3. **Second contact.** Each ray starts ``surface_offset`` inside the object (``p1 + surface_offset d``) and the
-   first triangle it hits is where it leaves the material: ``p2``. That hit must face along the ray (an *exit*:
-   ``face normal . d > 0``); a miss or an entering face means the start was not inside (open or inconsistently
-   wound mesh, or ``p1`` within ``surface_offset`` of an edge) and the ray is rejected as ``no_exit``. The segment
-   ``p1 -> p2`` therefore lies inside the object, and for a thin-walled object (a mug) the pair pinches one wall.
-4. **Checks**, in this order; a ray is counted under the first it fails (:class:`RejectCounts`):
+1. ``num_surface_points`` points uniformly by area (drawn from ``rng``), each ``p1`` with inward normal ``n1``.
+2. ``rays_per_point`` directions ``d`` uniform inside the friction cone (half-angle ``atan(mu)``) about ``n1``.
+3. Each ray starts ``surface_offset`` inside the object; its first hit must be an exit face, ``p2``, else the ray
+   is rejected as ``no_exit`` (open or inconsistently wound mesh).
+4. Checks, counted under the first failed (:class:`RejectCounts`): ``outside_cone`` (the line ``p1 -> p2`` in both
+   friction cones), ``width_too_small`` (``width >= max(gripper.min_width, surface_offset)``), ``width_too_large``
+   (``width + min_clearance <= gripper.max_width``; the gripper opens to ``min(width + width_margin, max_width)``).
+5. ``num_orientations`` approach axes ``z`` about ``x = (p2 - p1) / width`` (``p1`` the left pad's contact, on -x),
+   from a random phase; ``y = z x x``.
+6. Approach filter on the world approach axis: ``"above"`` (angle to straight down ``<= max_approach_angle``),
+   ``"hemisphere"`` (``z_w[2] < 0``) or ``"any"``.
+7. ``num_depths`` TCP set-backs ``d`` along ``-z`` (:func:`grasp_depths`), so the contacts lie at
+   ``(-+width / 2, 0, d)`` in the TCP frame, on the pad faces.
 
-   - ``outside_cone``: the line ``p1 -> p2`` must lie in both friction cones: ``angle(p2 - p1, n1) <= atan(mu)``
-     (true by construction up to round-off) and ``angle(p1 - p2, n2) <= atan(mu)`` with ``n2`` the inward normal
-     at ``p2``;
-   - ``width_too_small``: ``width = |p2 - p1| >= max(gripper.min_width, surface_offset)``;
-   - ``width_too_large``: ``width + min_clearance <= gripper.max_width``. **Margin convention:** the gripper is
-     opened to ``min(width + width_margin, gripper.max_width)`` before it approaches (width adaptation: no wider
-     than needed, so the open fingers fit between neighbours) and closes from there; a pair is kept when the full
-     opening leaves at least ``min_clearance`` beyond its width (``min_clearance / 2`` per side), so a 70 mm block
-     is still graspable in an 85 mm gripper although 70 mm + ``width_margin`` exceeds the stroke.
-
-5. **Orientations.** The TCP frame has ``x = (p2 - p1) / width`` (``p1`` is the *left* pad's contact, on -x;
-   ``p2`` the *right* pad's, on +x: :mod:`graspgen.grippers`). ``num_orientations`` approach axes ``z``
-   perpendicular to ``x`` are evenly spaced about ``x``, starting at a random phase (one per ray, from ``rng``);
-   ``y = z x x``, so ``[x y z]`` is a proper rotation.
-6. **Approach filter** on the world-frame approach axis ``z_w = R_object z`` (``object_pose`` places the object):
-   the approach angle is the angle between ``z_w`` and straight down ``(0, 0, -1)``, in ``[0, pi]``.
-
-   - ``"above"``: keep approach angle ``<= max_approach_angle`` (a cone about straight down; ``max_approach_angle
-     < pi/2``, so every kept approach points strictly downward);
-   - ``"hemisphere"``: keep ``z_w[2] < 0`` (the open upper hemisphere: any approach with a downward component,
-     side grasps up to but excluding horizontal; ``max_approach_angle`` is not used);
-   - ``"any"``: keep everything (collisions with the support are the pre-filter's business).
-
-7. **Grasp depths.** Each kept orientation gives ``num_depths`` candidates that differ only in how far the TCP sits
-   behind the contact line: ``origin = (p1 + p2) / 2 - d z`` for ``d`` in :func:`grasp_depths` (evenly spaced from
-   0 to ``pad_length / 2 - depth_margin``). The TCP is the pads' centre (ARCHITECTURE.md, Conventions), so in the TCP
-   frame the contacts lie at ``(-+width / 2, 0, d)``: on the pad faces, ``d`` towards the finger tips, and the tips
-   reach only ``pad_length / 2 - d`` past the contacts. Why: with ``d = 0`` the 2F-85's pads (37.5 mm) reach ~19 mm past
-   the contacts along the approach, so on low objects (a lying box, a 35 mm wedge) most downward grasps put the finger
-   tips into the table; a TCP set further back keeps them above it, as real planners vary the grasp depth. Depths are
-   deterministic (no random draws): ``num_depths = 1`` reproduces the contact-centred TCP exactly.
-
-Every kept candidate satisfies: both contacts on the surface, ``max(min_width, surface_offset) <= width <=
-max_width - min_clearance``, the contact line inside both friction cones, and both contacts on the pad faces
-(``|z| <= pad_length / 2 - depth_margin`` in the TCP frame; ``y = 0``).
-
-Speed: one ray per candidate pair, cast with ``mesh.ray.intersects_first``; everything else is vectorised numpy.
-With ``embreex`` installed ``mesh.ray`` is trimesh's Embree intersector (~4M rays/s); without it trimesh falls back
-to a pure-Python intersector about 1000x slower and this module warns.
+Without ``embreex`` trimesh's ray casting is about 1000x slower, and this module warns.
 """
 
 from __future__ import annotations
@@ -98,9 +61,8 @@ def _check_mesh(mesh: object) -> None:
 
 
 def narrowest_width(vertices: np.ndarray) -> float:
-    """The object's width at its narrowest, m: the smallest extent of its convex hull along a hull face normal
-    (the exact minimum or slightly above it). 0 for a flat or degenerate point set. An object wider than a
-    gripper's opening here has no antipodal pair across it: only thin parts (rims, handles) can be pinched."""
+    """The object's width at its narrowest, m: the smallest extent of its convex hull along a hull face normal (0 for a
+    flat or degenerate point set). An object wider than a gripper's opening here can only be pinched at thin parts."""
     try:
         hull = trimesh.convex.convex_hull(np.asarray(vertices, dtype=np.float64))
     except Exception:  # noqa: BLE001 - qhull refuses flat sets: no width to speak of
@@ -142,18 +104,15 @@ class AntipodalParams:
     """Opening margin (m, >= 0): the gripper opens to ``min(width + width_margin, gripper.max_width)`` before
     approaching (``width_margin / 2`` of clearance per side where the stroke allows)."""
     min_clearance: float = 0.01
-    """Smallest opening beyond the contact width (m, in ``[0, width_margin]``) a kept pair needs: pairs with
-    ``width + min_clearance <= gripper.max_width`` are kept. With the 2F-85 (85 mm) and the defaults, widths up to
-    65 mm open by the full 20 mm margin and widths of 65-75 mm open fully, with 5-10 mm to spare."""
+    """Smallest opening beyond the contact width (m, in ``[0, width_margin]``): pairs with ``width + min_clearance <=
+    gripper.max_width`` are kept, so a wide object is still graspable although ``width + width_margin`` exceeds the
+    stroke."""
     surface_offset: float = 1e-5
-    """How far (m, > 0) inside the surface each ray starts, so that it does not hit its own face again. Far above
-    Embree's float32 resolution at object scale (~1e-8 m for a 0.1 m object), far below any wall thickness. Widths
-    below it are rejected as too small."""
+    """How far (m, > 0) inside the surface each ray starts, so that it does not hit its own face; widths below it are
+    rejected as too small."""
     num_depths: int = 3
-    """Grasp depths per oriented contact pair (>= 1; step 7 of the module docstring): the TCP is set back along the
-    approach axis by ``num_depths`` offsets evenly spaced in ``[0, pad_length / 2 - depth_margin]`` (1: only 0, the
-    TCP at the contacts' midpoint). For the 2F-85 (37.5 mm pads) 0, 6.9 and 13.75 mm. Why 3: more free candidates
-    than 1, no gain from more (docs/decisions/2026-11-22-grasp-depths.md)."""
+    """Grasp depths per oriented contact pair (>= 1), evenly spaced in ``[0, pad_length / 2 - depth_margin]`` (1: the
+    TCP at the contacts' midpoint). Why 3: docs/decisions/2026-11-22-grasp-depths.md."""
     depth_margin: float = 0.005
     """Smallest distance (m, >= 0) between the contact line and the pad tips at the largest depth, so the pads
     still cover the contact with some face to spare (docs/decisions/2026-11-22-grasp-depths.md)."""
@@ -219,11 +178,8 @@ def _frozen(array: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class AntipodalCandidates:
-    """``n`` antipodal grasp candidates on one object. Arrays are read-only; row ``i`` of each is candidate ``i``.
-
-    Candidates come in runs of at most ``num_orientations * num_depths`` that share a contact pair (same
-    ``ray_index``), in increasing ``ray_index`` order; within a run, by orientation, then by increasing ``depth``.
-    """
+    """``n`` antipodal grasp candidates on one object; arrays read-only, row ``i`` of each is candidate ``i``, in runs
+    of at most ``num_orientations * num_depths`` sharing a contact pair (``ray_index``), increasing."""
 
     p1: np.ndarray
     """``(n, 3) float64`` first contact (m, object frame): the surface point the ray started from; the left pad's
@@ -272,11 +228,8 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _perpendicular_basis(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors ``(a, b)`` with ``(a, b, axis)`` right-handed orthonormal, for unit ``axis (m, 3)``.
-
-    ``a`` is ``axis x e`` with ``e`` the coordinate axis least aligned with ``axis`` (well conditioned: the cross
-    product has norm >= sqrt(2/3)); deterministic, so results depend only on the inputs.
-    """
+    """Two unit vectors ``(a, b)`` with ``(a, b, axis)`` right-handed orthonormal, for unit ``axis (m, 3)``;
+    deterministic."""
     e = np.zeros_like(axis)
     e[np.arange(len(axis)), np.argmin(np.abs(axis), axis=1)] = 1.0
     a = _unit(np.cross(axis, e))
@@ -312,16 +265,13 @@ def _cone_directions(axis: np.ndarray, per_axis: int, cos_max: float, rng: np.ra
 
 
 def grasp_depths(gripper: GripperSpec, params: AntipodalParams) -> np.ndarray:
-    """The grasp depths (m) of every oriented contact pair: ``(num_depths,) float64``, increasing.
-
-    ``num_depths`` values evenly spaced from 0 (TCP at the contacts' midpoint) to ``pad_length / 2 -
-    depth_margin`` (contacts ``depth_margin`` from the pad tips), ``pad_length = gripper.pad_size[2]``; just
-    ``[0]`` for one depth.
+    """The grasp depths (m) of every oriented contact pair: ``(num_depths,) float64`` evenly spaced from 0 to
+    ``pad_length / 2 - depth_margin`` (``pad_length = gripper.pad_size[2]``); ``[0]`` for one depth.
 
     Raises
     ------
     ValueError
-        ``num_depths > 1`` while ``depth_margin`` leaves no room on the gripper's pads (``>= pad_length / 2``).
+        ``num_depths > 1`` while ``depth_margin >= pad_length / 2``.
     """
     if params.num_depths == 1:
         return np.zeros(1)
@@ -335,25 +285,22 @@ def grasp_depths(gripper: GripperSpec, params: AntipodalParams) -> np.ndarray:
 
 def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: AntipodalParams,
                      rng: np.random.Generator, *, object_pose=None) -> AntipodalCandidates:
-    """Antipodal grasp candidates on ``mesh`` for ``gripper`` (see the module docstring for the algorithm).
+    """Antipodal grasp candidates on ``mesh`` for ``gripper`` (algorithm: the module docstring).
 
     Parameters
     ----------
     mesh
-        The object's surface in its OBJECT frame (m), watertight with outward normals (as
-        :func:`graspgen.geometry.repair.repair_mesh` leaves it). Its ray intersector is cached on the mesh, so
-        reuse one mesh object across calls.
+        The object's surface in its object frame (m), watertight with outward normals; reuse one mesh object across
+        calls (its ray intersector is cached on it).
     gripper
-        Gives the opening range ``[min_width, max_width]``.
+        Gives the opening range ``[min_width, max_width]`` and the pad size.
     params
         Sampler settings.
     rng
-        The only source of randomness; the same seed gives bitwise identical arrays. Each call draws, in order:
-        face choice (``num_surface_points``), barycentric coordinates (``2 num_surface_points``), cone directions
-        (``2 rays``) and orientation phases (``rays``), whatever is accepted.
+        The only source of randomness, drawn in a fixed order whatever is accepted: the same seed gives bitwise
+        identical arrays.
     object_pose
-        ``(4, 4)`` pose of the object frame in the world (default identity): gives ``pose_world`` and the frame of
-        the approach filter.
+        (4, 4) pose of the object frame in the world (default identity): gives ``pose_world`` and the approach filter.
 
     Returns
     -------
@@ -363,8 +310,7 @@ def sample_antipodal(mesh: trimesh.Trimesh, gripper: GripperSpec, params: Antipo
     Raises
     ------
     SettingsError
-        A wrong argument type/shape, ``params.width_margin`` leaving no usable opening for ``gripper``, or
-        ``params.depth_margin`` no depth range on its pads.
+        A wrong argument type or shape, or margins leaving no usable opening or depth range for ``gripper``.
     """
     _check_mesh(mesh)
     check_instance("gripper", gripper, GripperSpec)
@@ -433,9 +379,8 @@ def _cos_friction(friction: float) -> float:
 
 
 def _draw_rays(mesh: trimesh.Trimesh, params: AntipodalParams, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """The random draws, all up front in a fixed order so the stream does not depend on the geometry: first
-    contacts ``p1`` ``(r, 3)`` on faces ``face1`` with inward normals ``n1``, one row per ray; ray directions ``d``
-    ``(r, 3)`` in the friction cone; orientation phases ``phase`` ``(r,)``."""
+    """All random draws up front, in a fixed order: contacts ``p1`` (r, 3) on ``face1`` with inward normals ``n1``, cone
+    directions ``d`` (r, 3), orientation phases (r,)."""
     n_rays_per = params.rays_per_point
     p1, face1 = _sample_surface(mesh, params.num_surface_points, rng)
     n1 = -mesh.face_normals[face1]
@@ -486,9 +431,8 @@ def _pair_checks(rays: dict, hits: dict, min_width: float, max_width: float, cos
 
 
 def _orientations(x: np.ndarray, phase: np.ndarray, T_world: np.ndarray, params: AntipodalParams):
-    """Orientations about each kept contact line ``x`` ``(k, 3)`` and the approach filter: ``(pair, orient)``
-    indices of the kept ones (row-major: by ray, then by orientation), ``cos_t``/``sin_t`` ``(k, K)``, the
-    perpendicular basis ``a``, ``b`` ``(k, 3)``, ``approach_angle`` ``(k, K)`` and the ``keep`` mask."""
+    """Orientations about each contact line ``x`` (k, 3) and the approach filter: kept ``(pair, orient)`` indices,
+    ``cos_t``/``sin_t`` (k, K), basis ``a``, ``b`` (k, 3), ``approach_angle`` (k, K), ``keep``."""
     # With (a, b, x) right-handed orthonormal, z = cos(t) a + sin(t) b gives y = z x x = sin(t) a - cos(t) b: no
     # cross products; the approach filter needs only the world z components of a and b.
     n_orient = params.num_orientations

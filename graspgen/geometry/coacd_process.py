@@ -1,15 +1,10 @@
 """CoACD in a child process, so that a crash in its native code fails one mesh instead of the process that asked.
 
-CoACD 1.0.14 segfaults on some closed meshes (an out-of-bounds read in ``CDT::Triangulation::insertEdgeIteration``;
-single-threaded too, and every time on the same input: ``tests/data/coacd_segfault.npz``). Run in the calling
-process, that takes the worker, and with it the run, down, and a rerun stops at the same mesh without naming it.
-:func:`run_coacd` runs each call in a ``python -m graspgen.geometry.coacd_process`` child (one OpenMP thread: the
-run's workers are its parallelism), which reads meshes on stdin and writes their pieces on stdout, one request and one
-answer at a time, each an ``.npz`` after its length; a child that dies raises :class:`CoacdCrash` naming how, and the
-next call starts a new one. Starting a child costs about 0.15 CPU s (mostly numpy's import), so the calls made within
-:func:`shared_process` (one decomposition: its first cut and its refinements) and those of one
-:func:`run_coacd_each` share one child. Children are waited for, so their CPU time counts in the caller's
-``RUSAGE_CHILDREN`` (the engine adds it to the task's).
+:func:`run_coacd` runs each call in a ``python -m graspgen.geometry.coacd_process`` child (one OpenMP thread), which
+reads meshes on stdin and writes their pieces on stdout, one length-prefixed ``.npz`` request and answer at a time;
+a child that dies raises :class:`CoacdCrash` naming how, and the next call starts a new one. The calls within
+:func:`shared_process` and those of one :func:`run_coacd_each` share one child. Children are waited for, so their CPU
+time counts in ``RUSAGE_CHILDREN``. Why: docs/decisions/2026-12-03-coacd-child-process.md.
 """
 
 from __future__ import annotations

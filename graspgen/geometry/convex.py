@@ -1,12 +1,8 @@
 """Step 5 of mesh preparation: convex decomposition with CoACD (MuJoCo collides convex hulls), and its cache.
 
 :func:`convex_decomposition` splits a mesh in m into convex parts, each ``(vertices (v, 3) float64 m, faces
-(f, 3) int32)`` in the mesh frame. Decompositions can be cached on disk as ``coacd-<sha256>.npz``, keyed by the
-mesh bytes, the :class:`CoacdParams` and the CoACD version.
-
-:func:`hull_slack` (:mod:`graspgen.geometry.slack`, re-exported here) measures how far the union of the parts reaches
-beyond the true surface (what MuJoCo collides with that the mesh does not have), to choose CoACD settings by
-(``studies/hull_slack.py``).
+(f, 3) int32)`` in the mesh frame; the cache ``coacd-<sha256>.npz`` is keyed by the mesh bytes, the
+:class:`CoacdParams` and the CoACD version. :func:`hull_slack` is re-exported from :mod:`graspgen.geometry.slack`.
 """
 
 from __future__ import annotations
@@ -64,10 +60,8 @@ _HALF_CUT_PIECES = 4
 # the share the p95 criterion allows the whole union, asked of each piece.
 _ROUGH_SHARE = 0.05
 
-# The refinement cuts the rough pieces alone, each a CoACD run on the mesh inside it, where they hold at most this share
-# of the first cut's area; beyond, the whole mesh is cut again. A cut costs about in proportion to the pieces it makes
-# (0.03-0.05 CPU s each), and these in proportion to the area it cuts at a given concavity, so the rough pieces alone
-# cost less where they are a minority of the area (``studies/rough_piece_refine.py``).
+# The refinement cuts the rough pieces alone where they hold at most this share of the first cut's area, else the whole
+# mesh again: cheaper while they are a minority (docs/decisions/2026-12-03-coacd-child-process.md).
 _ROUGH_AREA = 0.5
 
 
@@ -111,39 +105,28 @@ class CoacdParams:
     """CoACD's own random seed; the decomposition is a pure function of mesh, settings and this seed."""
 
     refine_excess: float = 0.01
-    """If the parts' total volume exceeds the mesh's by more than this fraction, they may bridge a concavity the
-    gripper could reach (a thin-walled cup or bowl: parts filling its cavity make every grasp on its rim collide);
-    if their hull slack (p95, :func:`hull_slack`) is also over ``slack_p95``, the parts are refined. Where CoACD made
-    at most four times ``max_convex_hull`` pieces: if the rough ones (over 5 % of a piece's surface more than
-    ``slack_p95`` out of the mesh) hold at most half the pieces' area, each is cut again alone, on the mesh inside it,
-    at the concavity of a quarter of the threshold, and the others are kept; if not, or if the slack is still over
-    ``slack_p95``, the whole mesh is cut again, at a quarter of the threshold where CoACD made at most twice
-    ``max_convex_hull`` pieces, else at half (a cut at a quarter makes 5-7 times the pieces, at half 2-3.5 times; more
-    pieces than that are merged back to the cap, which bridges again what the cut separated, at the cost of the
-    cut). With more pieces, they are merged again. Each try is merged down to four times ``max_convex_hull``, and the
-    parts of lowest slack are kept. Fraction >= 0; 0 turns this off
+    """Fraction (>= 0; 0: off) by which the parts' total volume may exceed the mesh's before, with a hull slack p95 over
+    ``slack_p95``, the parts are refined: the rough pieces cut again alone, or the whole mesh cut at a finer threshold,
+    keeping the parts of lowest slack. Parts bridging a concavity (a cup's cavity) make grasps on its rim collide
     (docs/decisions/2026-12-03-coacd-decomposition.md)."""
 
     preprocess_mode: str = "unless_watertight"
-    """CoACD's manifold pre-processing (rebuilding the mesh as a level set on a voxel grid of
-    ``preprocess_resolution`` cells, which dilates it by about half a cell and costs most of the decomposition's
-    time): ``"unless_watertight"`` skips it for a mesh that is watertight with consistent winding after repair
-    (already a closed 2-manifold) and leaves it to CoACD's own check (``"auto"``) otherwise; ``"auto"``, ``"on"``
-    and ``"off"`` are passed to CoACD as they are. Raises :class:`SettingsError` for another value."""
+    """CoACD's manifold pre-processing (a voxel rebuild that dilates the mesh by about half a cell and is slow):
+    ``"unless_watertight"`` skips it for a mesh watertight with consistent winding after repair and uses ``"auto"``
+    otherwise; ``"auto"``, ``"on"`` and ``"off"`` are passed to CoACD. Another value raises :class:`SettingsError`."""
 
     slack_p95: float = 1e-3
-    """Hull-slack criterion in m (95th percentile of how far the parts' union stands out of the surface,
-    :func:`hull_slack`; half the fingers' 2 mm touch allowance, ``studies/hull_slack.py``): a near-convex mesh
-    whose own convex hull meets it is not decomposed, and a decomposition meeting it is not refined."""
+    """Hull-slack criterion in m (p95 of how far the parts stand out of the surface, :func:`hull_slack`; half the
+    fingers' 2 mm touch allowance): a near-convex mesh whose hull meets it is not decomposed, a decomposition meeting it
+    is not refined."""
 
     near_convex_excess: float = 0.05
     """A watertight mesh whose convex hull exceeds its volume by at most this fraction is tested as near-convex:
     its hull alone is used if its slack meets ``slack_p95``. 0 only skips exactly convex meshes (1e-6)."""
 
     free_merge_depth: float = 2.5e-4
-    """CoACD's neighbouring pieces are merged, shallowest first, while the hull of a pair stands at most this far
-    (m) outside the pieces it is made of (:func:`graspgen.geometry.part_merge.bridge_depth`), even below
-    ``max_convex_hull``: a quarter of ``slack_p95``, so what it adds stays well inside the slack criterion."""
+    """CoACD's neighbouring pieces are merged, shallowest first, while a pair's hull stands at most this far (m) outside
+    its pieces (:func:`graspgen.geometry.part_merge.bridge_depth`), even below ``max_convex_hull``."""
 
     slack_samples: int = 4000
     """Area samples of each hull-slack measurement taken by the decision rules above (seeded from the
@@ -172,28 +155,14 @@ class CoacdParams:
 
 
 def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Split a mesh into convex parts for collision.
+    """Split a repaired mesh (m) into convex parts for collision.
 
-    A watertight mesh whose volume equals its convex hull's within 1e-6 (relative) is already convex, and one
-    whose hull exceeds its volume by at most ``params.near_convex_excess`` and stands out of it by at most
-    ``params.slack_p95`` (p95 hull slack, :func:`hull_slack`) is convex as far as a gripper can tell; CoACD would
-    only re-approximate either, so its hull is returned as the single part. Otherwise CoACD cuts the mesh with
-    ``params`` (its manifold pre-processing as ``params.preprocess_mode`` says, its own merge off); each piece is
-    replaced by its own convex hull (CoACD's output is not always exactly convex and MuJoCo needs it to be),
-    pieces below 1e-6 of the hull volume are dropped, and the rest are merged by how far a merged pair stands
-    out of its pieces (:func:`graspgen.geometry.part_merge.merge_convex_parts`: down to
-    ``params.max_convex_hull``, and further while a merge costs at most ``params.free_merge_depth``). The parts
-    are sorted by centroid (x, then y, then z) and vertex count so that the order does not depend on CoACD
-    internals. If every piece is dropped, the mesh's convex hull is the single part. Parts exceeding the volume
-    by more than ``params.refine_excess`` with a slack over ``params.slack_p95`` are refined (see
-    :class:`CoacdParams`).
-
-    Parameters
-    ----------
-    mesh
-        Repaired mesh in m.
-    params
-        CoACD settings.
+    A convex mesh, or a near-convex one (hull volume excess <= ``near_convex_excess`` and hull slack p95 <=
+    ``slack_p95``), gives its convex hull as the single part. Otherwise CoACD cuts it (its own merge off), each piece is
+    replaced by its convex hull, slivers below 1e-6 of the hull volume dropped, and the pieces merged by bridge depth
+    (:func:`graspgen.geometry.part_merge.merge_convex_parts`) to ``max_convex_hull`` and further while a merge costs at
+    most ``free_merge_depth``; then refined as :attr:`CoacdParams.refine_excess` says. Parts are sorted by centroid and
+    vertex count, independent of CoACD's internals; if every piece is dropped, the hull is the single part.
 
     Returns
     -------
@@ -221,12 +190,9 @@ def convex_decomposition(mesh: trimesh.Trimesh, params: CoacdParams) -> list[tup
 
 def _refined(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, closed: bool, pieces: list[ConvexPart],
              first: tuple[list[ConvexPart], float], params: CoacdParams) -> list[ConvexPart]:
-    """The parts of lower slack of ``first`` (parts, slack p95) and the tries below, each merged down to four times
-    ``max_convex_hull``. Where there are at most four times ``max_convex_hull`` ``pieces``: if the rough ones
-    (:data:`_ROUGH_SHARE`) hold at most half their area (:data:`_ROUGH_AREA`), they are cut again alone at a quarter
-    of the threshold (:func:`_rough_pieces_recut`); if not, or if that leaves the slack over ``slack_p95``, the whole
-    mesh is cut again, at a quarter of the threshold where there are at most twice ``max_convex_hull`` pieces, else
-    at half. With more pieces, the same pieces are merged again."""
+    """The parts of lower slack of ``first`` (parts, slack p95) and the refinement tries (rough pieces recut, or the
+    whole mesh cut at a quarter or half of the threshold, or the pieces merged again), each merged down to four times
+    ``max_convex_hull``."""
     cap = -1 if params.max_convex_hull == -1 else 4 * params.max_convex_hull
     tries = {"first": first}
     if cap == -1 or len(pieces) <= _HALF_CUT_PIECES * params.max_convex_hull:
@@ -256,10 +222,9 @@ def _refined(mesh: trimesh.Trimesh, hull: trimesh.Trimesh, closed: bool, pieces:
 
 def _rough_pieces_recut(mesh: trimesh.Trimesh, pieces: list[ConvexPart], rough: np.ndarray,
                         params: CoacdParams) -> list[ConvexPart]:
-    """``pieces`` with each rough one (``rough (p,) bool``) replaced by CoACD's pieces of the mesh inside it (a
-    manifold intersection), cut at the absolute concavity of a whole-mesh cut at a quarter of the threshold (CoACD's
-    threshold is relative to half the largest extent of what it cuts), all in one CoACD process. A rough piece is
-    kept as it is where the mesh inside it is empty or CoACD fails on it (logged)."""
+    """``pieces`` with each rough one (``rough (p,) bool``) replaced by CoACD's pieces of the mesh inside it, cut at the
+    absolute concavity of a whole-mesh cut at a quarter of the threshold, in one CoACD process; a piece whose inside is
+    empty or fails in CoACD is kept (logged)."""
     half_extent = float(np.max(np.ptp(mesh.vertices, axis=0))) / 2
     which, requests = [], []
     for i in np.flatnonzero(rough):
@@ -369,10 +334,8 @@ def _coacd_kwargs(params: CoacdParams, closed: bool) -> dict:
 
 
 def _convex_part(vertices: np.ndarray, faces: np.ndarray) -> ConvexPart | None:
-    """The convex hull of one CoACD piece, or None when qhull cannot make one: a flat or collinear piece (no volume:
-    a sliver, dropped with the others), points qhull cannot handle (an infinite coordinate: ``QhullError``) or NaN
-    (scipy's ``ValueError``). Anything else is a bug and propagates. ``faces`` are not needed: the hull is of the
-    vertices."""
+    """The convex hull of one CoACD piece, or None when qhull cannot make one (flat, collinear, infinite or NaN points);
+    anything else propagates."""
     if len(vertices) < 4:
         return None
     try:
@@ -455,9 +418,7 @@ def _read_parts(path: Path) -> list[tuple[np.ndarray, np.ndarray]] | None:
 
 
 _UNREADABLE_CACHE = (OSError, EOFError, ValueError, KeyError, TypeError, zipfile.BadZipFile)
-"""What ``np.load`` and the reads above raise on a damaged entry: OSError (unreadable), EOFError (empty),
-BadZipFile (truncated, or a failed CRC), ValueError (not an npz: it looks like pickled data), KeyError (a part
-missing), TypeError (a plain .npy, or a ``count`` that is not a scalar)."""
+"""What ``np.load`` and the reads above raise on a damaged cache entry."""
 
 
 def write_parts(path: Path, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:

@@ -1,15 +1,9 @@
 """Merging convex parts by how far the merged hull bridges beyond them (the last step of the convex decomposition).
 
-CoACD's own merge (a concavity cost for every pair of pieces) is turned off: it took much of CoACD's time and its
-pairs were no better for a gripper (docs/decisions/2026-12-03-coacd-decomposition.md). Here only pieces whose
-bounding boxes touch are candidates, and a pair is judged by its *bridge depth*: how far the convex
-hull of the two stands outside the pieces they were made of, the same quantity (in m) as the hull slack the
-decomposition is judged by (:mod:`graspgen.geometry.slack`), since the pieces themselves follow the surface.
-Pairs are merged shallowest first while the depth is within ``free_depth`` (merging them costs the gripper nothing)
-or while more than ``max_parts`` parts are left. A merged part keeps its pieces' planes (each once) and which piece
-each of its corners came from: a probe of a pair's hull is measured first against its face's corners' pieces only, an
-upper bound on its distance, and against every piece only while that bound could be the deepest (the same result,
-several times faster on a fine cut's pieces).
+Only pieces whose bounding boxes touch are candidates; a pair is judged by its bridge depth (m), how far the hull of
+the two stands outside the pieces, the same quantity as the hull slack (:mod:`graspgen.geometry.slack`). Pairs are
+merged shallowest first while the depth is within ``free_depth`` or more than ``max_parts`` parts are left. Why not
+CoACD's own merge: docs/decisions/2026-12-03-coacd-decomposition.md.
 """
 
 from __future__ import annotations
@@ -60,26 +54,12 @@ def convex_part(points: np.ndarray) -> ConvexPart:
 
 
 def bridge_depth(points: np.ndarray, pieces: list[np.ndarray], owners: np.ndarray | None = None) -> float:
-    """How far the convex hull of ``points`` stands outside the union of convex ``pieces``, m.
+    """How far the convex hull of ``points`` (n, 3) stands outside the union of convex ``pieces``, m.
 
-    Parameters
-    ----------
-    points
-        ``(n, 3) float`` points whose hull is judged (the pieces' vertices).
-    pieces
-        The pieces as their hulls' plane equations, each ``(k, 4) float`` rows ``[normal, offset]`` with
-        ``normal @ x + offset <= 0`` inside (scipy's ``ConvexHull.equations``).
-    owners
-        ``(n,) int`` the piece each point is a vertex of, or None. It only saves time: with it, each probe is first
-        measured against the pieces its face's corners belong to, which bounds its distance from above, and only the
-        probes whose bound could still be the answer are measured against every piece. The result is the same.
-
-    Returns
-    -------
-    float
-        The largest, over four points on each face of the hull, of the distance to the nearest piece, each distance
-        taken as the largest plane violation (exact where the nearest feature of the piece is a face, short of the
-        Euclidean distance near its edges and corners). 0 when every probe lies in a piece.
+    ``pieces`` are their hulls' plane equations, each (k, 4) ``[normal, offset]`` with ``normal @ x + offset <= 0``
+    inside; ``owners`` (n,) int, the piece each point belongs to, only saves time (the result is the same). Returns the
+    largest, over four probes on each hull face, of the distance to the nearest piece as its largest plane violation
+    (exact against a face, short near edges and corners); 0 when every probe lies in a piece.
     """
     hull = ConvexHull(points)
     probes = np.einsum("kj,fjd->fkd", _FACE_POINTS, points[hull.simplices]).reshape(-1, 3)
@@ -110,9 +90,8 @@ _EXACT_BATCH = 64
 
 
 def _violations(probes: np.ndarray, planes: np.ndarray) -> np.ndarray:
-    """``(p, k)`` signed distances of ``(p, 3)`` probes to ``(k, 4)`` planes, in a fixed order of operations (not a
-    matrix product, whose rounding depends on the shapes and the CPU): a probe's distance to a plane is the same bits
-    whichever other probes and planes it is measured with."""
+    """(p, k) signed distances of (p, 3) probes to (k, 4) planes, in a fixed order of operations so each distance has
+    the same bits whichever other probes and planes it is measured with."""
     return (probes[:, 0:1] * planes[:, 0] + probes[:, 1:2] * planes[:, 1] + probes[:, 2:3] * planes[:, 2]
             + planes[:, 3])
 
@@ -180,23 +159,10 @@ class _Parts:
 
 
 def merge_convex_parts(vertices: list[np.ndarray], max_parts: int, free_depth: float) -> list[np.ndarray]:
-    """Merge neighbouring convex parts, shallowest bridge first (:func:`bridge_depth`).
-
-    Parameters
-    ----------
-    vertices
-        Each part's ``(v, 3) float`` vertices (convex, of positive volume), m.
-    max_parts
-        Merge until at most this many parts are left; -1 for no bound.
-    free_depth
-        Also merge while the shallowest pair's bridge depth is at most this, m.
-
-    Returns
-    -------
-    list of (v, 3) float
-        The merged parts' hull vertices, in the order they were made (the parts left as they were first). The result
-        is a pure function of the input: ties are broken by the parts' indices.
-    """
+    """Merge neighbouring convex parts (each (v, 3) vertices, m, of positive volume), shallowest bridge first, until at
+    most ``max_parts`` are left (-1: no bound) and while the shallowest bridge is at most ``free_depth`` m. Returns the
+    merged parts' hull vertices in the order made (untouched parts first); ties broken by index, so a pure function of
+    the input."""
     parts = _Parts([np.asarray(v, dtype=np.float64) for v in vertices])
     count = len(parts.points)
     heap = [(parts.depth(i, int(j)), i, int(j)) for i in range(count) for j in parts.neighbours(i, i + 1, count)]

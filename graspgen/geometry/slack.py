@@ -1,9 +1,7 @@
 """Hull slack: how far a union of convex parts stands out of a mesh's surface (and falls short of it), in m.
 
-:func:`hull_slack` measures both ways (:class:`HullSlack`); :func:`outward_slack_p95` only the 95th percentile of
-the outward slack, the figure :func:`graspgen.geometry.convex.convex_decomposition`'s rules decide by (the same value
-as ``hull_slack(...).p95`` for the same generator state, at a fraction of the cost: the converse is not measured).
-Used to choose CoACD settings by (``studies/hull_slack.py``, ``bench/bench_prep.py``).
+:func:`hull_slack` measures both ways (:class:`HullSlack`); :func:`outward_slack_p95` only the outward p95 that
+:func:`graspgen.geometry.convex.convex_decomposition` decides by (the same value for the same generator state).
 """
 
 from __future__ import annotations
@@ -30,9 +28,8 @@ class HullSlack:
     """95th percentile of that distance over the union's boundary, area-weighted (points on or inside the mesh
     count as 0): 5 % of the boundary area stands further out than this."""
     short_max: float
-    """The other way round: largest distance from the union of a point of the mesh's surface outside every part
-    (sampled points and the mesh's vertices), i.e. how far the parts fall short of the surface; 0 when they
-    cover it."""
+    """The other way round: largest distance from the union of a point of the mesh's surface outside every part (how far
+    the parts fall short); 0 when they cover it."""
     short_p95: float
     """95th percentile of that distance over the mesh's surface, area-weighted (covered points count as 0)."""
     samples: int
@@ -58,40 +55,25 @@ def hull_slack(
     n_samples: int,
     rng: np.random.Generator,
 ) -> HullSlack:
-    """How far the union of ``convex_parts`` extends beyond the surface of ``mesh`` (and falls short of it).
+    """How far the union of ``convex_parts`` extends beyond the surface of ``mesh`` (and falls short of it), m.
 
-    MuJoCo collides the parts, not the mesh, so wherever the union stands out of the mesh a gripper touches what
-    is not there (a coarse hull thickening a thin wall, or bridging a cavity). Measured on the union's boundary,
-    the surface a gripper coming from outside meets first: ``n_samples`` points are drawn uniformly by area over
-    all the parts' faces (``rng``), and a point is dropped when a step of 10 um along its face's outward normal
-    lands strictly inside another part (that face is buried in the union, e.g. the cut between two parts). Each
-    kept point's slack is its unsigned distance to the mesh surface if it lies outside the mesh, else 0; inside
-    vs outside by the generalised winding number of the mesh (robust also for a mesh with small holes). The
-    maximum also takes the parts' vertices that are on the boundary (a hull's corners are where it usually stands
-    out furthest); the 95th percentile is over the area samples only. The maximum of a sample falls short of the
-    true one by up to about the samples' spacing where the farthest point is not a vertex (the middle of a hull's
-    face bridging a cavity).
-
-    The converse (``short_*``): ``n_samples`` points drawn by area over the mesh's surface, with its vertices for
-    the maximum; a point inside a part is covered (0), else its distance to the union is its distance to the
-    nearest part's surface. Parts falling short let a finger into the object by that much. (Gaps between parts
-    deep inside the object do not count: they are not on the surface.)
+    MuJoCo collides the parts, not the mesh, so where the union stands out a gripper touches what is not there.
+    Outward: ``n_samples`` points by area over the parts' faces (``rng``), those buried in another part dropped; a
+    point's slack is its distance to the mesh surface if outside the mesh (generalised winding number), else 0; the
+    maximum also takes the parts' boundary vertices. Short: as many points over the mesh's surface, plus its vertices;
+    0 inside a part, else the distance to the nearest part.
 
     Parameters
     ----------
     mesh
         The true surface (m), e.g. the repaired mesh the parts were made from.
     convex_parts
-        ``(vertices (v, 3), faces (f, 3))`` per part, outward-wound convex hulls (:func:`convex_decomposition`).
+        ``(vertices (v, 3), faces (f, 3))`` per part, outward-wound convex hulls.
     n_samples
-        Area samples over all parts, and as many over the mesh (e.g. 20,000: the percentiles' sampling error is
-        then well below 0.1 mm on objects of grasping size).
+        Area samples over the parts, and as many over the mesh (20,000 keeps the percentiles' error below 0.1 mm at
+        grasping size).
     rng
-        Random generator of the sample points.
-
-    Returns
-    -------
-    HullSlack
+        Source of the sample points.
     """
     _check_mesh(mesh, "mesh")
     check_positive_int("n_samples", n_samples)
@@ -127,10 +109,8 @@ def outward_slack_p95(
     n_samples: int,
     rng: np.random.Generator,
 ) -> float:
-    """``hull_slack(mesh, convex_parts, n_samples, rng).p95`` (m) without the rest: the same value for the same
-    ``rng`` state (the boundary samples are drawn first and measured alone), for the decision rules of
-    :func:`graspgen.geometry.convex.convex_decomposition`. Parts ``(vertices (v, 3), faces (f, 3))`` as
-    :func:`hull_slack`'s."""
+    """``hull_slack(mesh, convex_parts, n_samples, rng).p95`` (m) without the rest: the same value for the same ``rng``
+    state, at a fraction of the cost."""
     _check_mesh(mesh, "mesh")
     check_positive_int("n_samples", n_samples)
     check("convex_parts", len(convex_parts) > 0, "hold at least one part", len(convex_parts))
@@ -149,34 +129,9 @@ def rough_parts(
     rng: np.random.Generator,
     area_limit: float = 1.0,
 ) -> np.ndarray | None:
-    """Which parts stand more than ``depth`` (m) outside the mesh on more than ``share`` of their surface: where a
-    decomposition's slack comes from.
-
-    Parameters
-    ----------
-    mesh
-        Closed mesh, m.
-    convex_parts
-        ``(vertices (v, 3), faces (f, 3))`` per part, as :func:`hull_slack`'s.
-    depth
-        Distance outside the surface, m.
-    share
-        Share of a part's area samples, in [0, 1).
-    n_samples
-        Area samples over all the parts' faces together (a part gets about its share of the area).
-    rng
-        Source of the samples.
-    area_limit
-        Stop as soon as the parts found rough hold more than this share of the parts' total area, in (0, 1].
-
-    Returns
-    -------
-    (p,) bool or None
-        Per part, whether more than ``share`` of its samples lie farther than ``depth`` outside the mesh (False for a
-        part no sample fell on); None if the rough parts hold more than ``area_limit`` of the area. The side of the
-        mesh (a winding number) is settled only for the points farther than ``depth`` from its surface, farthest
-        first, and only until each part's answer, or the area limit, is known.
-    """
+    """Which of ``convex_parts`` stand more than ``depth`` (m) outside the closed ``mesh`` on more than ``share`` (in
+    [0, 1)) of their ``n_samples`` area samples: (p,) bool (False for a part no sample fell on), or None as soon as the
+    rough parts hold more than ``area_limit`` (in (0, 1]) of the parts' area."""
     _check_mesh(mesh, "mesh")
     check_positive_int("n_samples", n_samples)
     check("convex_parts", len(convex_parts) > 0, "hold at least one part", len(convex_parts))
@@ -222,10 +177,8 @@ _SIGN_BATCH = 256
 
 
 def _top_outward(mesh: trimesh.Trimesh, points: np.ndarray, count: int) -> np.ndarray:
-    """``max(_outside_distance(mesh, points), 0)`` ``(n,)`` exact in its ``count`` largest values, the rest no larger
-    than the true ones and no larger than any of those: what a percentile needs, at a fraction of the winding
-    numbers. Points are settled farthest first; once ``count`` of them are outside, every point left is no farther
-    from the surface than they are, so its value (its distance, or 0 inside) cannot rank above them."""
+    """``max(_outside_distance(mesh, points), 0)`` (n,), exact in its ``count`` largest values and no larger elsewhere:
+    what a percentile needs, settling points farthest first."""
     distance = _surface_distance(mesh, points)
     outward = np.where(distance > 1e-9, 0.0, distance)  # on the surface the sign does not matter
     order = np.argsort(-distance, kind="stable")
@@ -302,10 +255,8 @@ def _face_planes(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, n
 
 def _inside_parts(points: np.ndarray, union: _Union, owner: np.ndarray | None,
                   tolerance: float = _INSIDE_TOLERANCE) -> np.ndarray:
-    """Whether each point ``(n, 3)`` lies inside some part by more than ``tolerance`` (a negative one: within it of a
-    part), not counting its own part (``owner (n,)``; None: any part counts). Only the points within
-    :data:`_BOX_MARGIN` of a part's bounding box, and not yet found inside another, are tested against its planes
-    (a point inside a convex part is inside its vertices' box): the same answer at a fraction of the cost."""
+    """Whether each point (n, 3) lies inside some part by more than ``tolerance`` (negative: within it of a part), not
+    counting its own part ``owner`` (n,) (None: any part counts); tested only near each part's bounding box."""
     inside = np.zeros(len(points), dtype=bool)
     margin = max(0.0, -tolerance) + _BOX_MARGIN
     for j, (n, d) in enumerate(union.planes):
@@ -329,11 +280,8 @@ def _outside_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
 
 
 def _surface_distance(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Unsigned distance of each point from the mesh surface (exact: the nearest of the candidate triangles).
-
-    Not ``trimesh.proximity.closest_point``: it treats two candidates whose *squared* distances differ by less than
-    1e-8 as a tie and may keep the farther one, which at millimetres (squared: 1e-6 m^2) is an error of percents.
-    """
+    """Exact unsigned distance of each point from the mesh surface. Not ``trimesh.proximity.closest_point``: its 1e-8
+    squared-distance tie rule may keep the farther triangle, an error of percents at millimetres."""
     candidates = trimesh.proximity.nearby_faces(mesh, points)  # a superset of each point's nearest triangles
     counts = np.array([len(c) for c in candidates])
     which = np.concatenate(candidates).astype(np.int64)

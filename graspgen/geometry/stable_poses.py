@@ -52,9 +52,8 @@ class StablePoseParams:
     """Settings of the stable-pose search and of its MuJoCo settle check."""
 
     min_probability: float = 0.02
-    """Pose classes less probable than this (quasi-static drop probability, in [0, 1)) are ignored. A class is
-    the candidates with the same centre-of-mass height (a cylinder's side facets), so symmetric shapes keep
-    their probable poses however finely they are faceted."""
+    """Pose classes less probable than this (quasi-static probability, in [0, 1)) are ignored; a class is the candidates
+    with the same centre-of-mass height, so a finely faceted cylinder keeps its side pose."""
 
     max_poses: int = 8
     """At most this many poses are returned, the most probable first."""
@@ -96,26 +95,9 @@ class StablePoseParams:
 
 
 def resting_transform(hull_vertices: np.ndarray, center_of_mass: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Transform that rests an object on z = 0 on the hull face with outward ``normal``.
-
-    The rotation follows trimesh's convention (rows x, y, z with z = -normal), so a pose depends only on its
-    resting face. The translation puts the centre of mass above the world origin and the lowest hull vertex
-    on z = 0.
-
-    Parameters
-    ----------
-    hull_vertices
-        ``(v, 3) float`` convex hull vertices, mesh frame, m.
-    center_of_mass
-        ``(3,) float`` centre of mass, mesh frame, m.
-    normal
-        ``(3,) float`` outward normal (mesh frame) of the face the object rests on.
-
-    Returns
-    -------
-    (4, 4) float64
-        Mesh-frame-to-world homogeneous transform.
-    """
+    """(4, 4) float64 mesh-to-world transform resting the object on z = 0 on the hull face with outward ``normal`` (3,):
+    rotation by trimesh's convention (z = -normal), centre of mass ``center_of_mass`` (3,) above the origin, lowest of
+    ``hull_vertices`` (v, 3) on z = 0; all mesh frame, m."""
     z = -np.asarray(normal, dtype=np.float64)
     z = z / np.linalg.norm(z)
     x = np.array([-z[1], z[0], 0.0])
@@ -136,31 +118,17 @@ def resting_transform(hull_vertices: np.ndarray, center_of_mass: np.ndarray, nor
 def pose_candidates(
     mesh: trimesh.Trimesh, mass: MassProperties, params: StablePoseParams, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The candidate resting faces of the object, before any settle check, most probable first.
+    """The candidate resting faces of the object before any settle check, most probable first.
 
-    Candidates come from trimesh's quasi-static toppling analysis of the convex hull
-    (``trimesh.poses.compute_stable_poses`` with ``sigma=0, n_samples=1`` and a fixed seed, which draws
-    nothing random). With ``params.com_sigma > 0`` the centre of mass is perturbed ``com_samples`` times using
-    ``rng`` (the only use of ``rng``) and the probabilities averaged. Candidates are grouped into classes of
-    equal centre-of-mass height (one physical pose split over the facets of a faceted solid of revolution);
-    classes below ``min_probability`` are ignored (if all are, the most probable is kept) and at most
-    ``max_poses`` candidates are kept round-robin over the classes (:func:`_select_pose_classes`).
-
-    Parameters
-    ----------
-    mesh
-        Repaired mesh in m.
-    mass
-        Its mass properties.
-    params
-        Settings.
-    rng
-        Random generator; only drawn from when ``params.com_sigma > 0``.
+    Trimesh's quasi-static toppling analysis of the convex hull; with ``params.com_sigma > 0`` the centre of mass is
+    perturbed ``com_samples`` times from ``rng`` (its only use) and the probabilities averaged. Candidates are grouped
+    into classes of equal centre-of-mass height, classes below ``min_probability`` dropped (the most probable kept if
+    all are) and at most ``max_poses`` kept round-robin over the classes.
 
     Returns
     -------
     normals : (k, 3) float64
-        Outward normals (mesh frame) of the resting faces of the hull, k >= 1.
+        Outward normals (mesh frame) of the resting hull faces, k >= 1.
     probabilities : (k,) float64
         Their probabilities (not renormalised).
 
@@ -183,15 +151,8 @@ def pose_candidates(
 def resting_poses(
     hull: trimesh.Trimesh, mass: MassProperties, normals: np.ndarray, probs: np.ndarray, params: StablePoseParams
 ) -> tuple[np.ndarray, np.ndarray]:
-    """At most ``params.max_poses`` poses resting on the faces with outward ``normals (k, 3)``, most probable first.
-
-    Returns
-    -------
-    transforms : (n, 4, 4) float64
-        Mesh-to-world transforms resting the object on z = 0 (:func:`resting_transform`), n = min(k, max_poses).
-    probabilities : (n,) float64
-        ``probs`` of the kept poses renormalised to sum to 1, descending.
-    """
+    """At most ``params.max_poses`` poses resting on the faces with outward ``normals`` (k, 3), most probable first:
+    transforms (n, 4, 4) float64 (:func:`resting_transform`) and probabilities (n,) renormalised to sum to 1."""
     com = np.asarray(mass.center_of_mass, dtype=np.float64)
     order = _descending(normals, probs)[: params.max_poses]
     normals, probs = normals[order], probs[order]
@@ -250,16 +211,9 @@ def _inside_hull(hull: trimesh.Trimesh, point: np.ndarray) -> bool:
 def _select_pose_classes(
     hull: trimesh.Trimesh, com: np.ndarray, normals: np.ndarray, probs: np.ndarray, params: StablePoseParams
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Keep the candidates of probable pose *classes*, at most ``max_poses``, with class-faithful probabilities.
-
-    A faceted solid of revolution splits one physical pose over many hull faces: a 64-sided cylinder lying on
-    its side gets 64 candidates of ~1 % each, so a per-face threshold would keep only its two end caps and say
-    it always stands upright. Candidates whose centre of mass sits at the same height above the table
-    (within ``_SAME_HEIGHT``) form one class; the threshold applies to a class's total probability, and the
-    ``max_poses`` slots are filled round-robin over the classes, most probable first. Each kept pose carries
-    its class's probability divided by the number of its members kept, so the distribution over classes is
-    exactly the quasi-static one.
-    """
+    """Keep the candidates of probable pose classes (equal centre-of-mass height within ``_SAME_HEIGHT``), at most
+    ``max_poses`` round-robin over the classes; each kept pose carries its class's probability over its kept members,
+    so the distribution over classes stays the quasi-static one."""
     order = _descending(normals, probs)
     normals, probs = normals[order], probs[order]
     heights = (hull.vertices @ normals.T).max(axis=0) - normals @ com
@@ -295,26 +249,11 @@ def merge_settled(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The candidates replaced by the faces they settled onto, unrested ones dropped, equal ones merged.
 
-    A candidate that did not come to rest is dropped. One that did is *replaced by its settled pose* (the hull face
-    pointing down under its final rotation): if that tilts more than ``max_tilt`` from the candidate, the candidate
-    was not really stable and its probability moves to where it went. Settled poses whose resting normals are
-    within ``max_tilt`` of each other are merged (probabilities add, the more probable one's pose is kept). If
-    every candidate is dropped, the settled face of the first one is returned alone with probability 1.
-
-    Parameters
-    ----------
-    hull
-        The object's convex hull, mesh frame, m.
-    normals, probs
-        ``(k, 3)`` candidate resting-face normals and ``(k,)`` probabilities (:func:`pose_candidates`).
-    rotations
-        ``(k, 3, 3)`` each candidate's mesh-to-world rotation at the end of its drop (non-finite: diverged).
-    at_rest
-        ``(k,) bool`` whether each candidate came to rest.
-    params
-        Only ``max_tilt`` is read.
-    label
-        The object's name in log messages.
+    A candidate that came to rest (``at_rest`` (k,)) is replaced by the hull face pointing down under its final
+    rotation (``rotations`` (k, 3, 3), non-finite: diverged); settled normals within ``params.max_tilt`` are merged,
+    probabilities added. If every candidate is dropped, the first one's settled face is returned alone with
+    probability 1. ``normals`` (k, 3) and ``probs`` (k,) come from :func:`pose_candidates`; ``label`` names the object
+    in log messages.
 
     Returns
     -------
@@ -348,11 +287,8 @@ def _resting_face_normal(hull: trimesh.Trimesh, rotation: np.ndarray) -> np.ndar
 
 
 def _merge_close(normals: np.ndarray, probs: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
-    """Merge normals within ``angle`` (rad) of an earlier one, adding their probabilities.
-
-    Greedy in the given order, so with ``normals (k, 3)`` sorted most probable first each group is represented
-    by its most probable member. Returns the representatives ``(m, 3)`` and summed probabilities ``(m,)``.
-    """
+    """Merge ``normals`` (k, 3) within ``angle`` (rad) of an earlier one, greedily in order, adding their probabilities:
+    representatives (m, 3) and summed probabilities (m,)."""
     unit = normals / np.linalg.norm(normals, axis=1, keepdims=True)
     cos_limit = math.cos(angle)
     group = np.full(len(unit), -1)

@@ -27,7 +27,7 @@ def _read_bundled(name: str) -> GripperSpec:
 #: Registered grippers by name, read from their files in ``assets/grippers``.
 GRIPPERS: dict[str, GripperSpec] = {name: _read_bundled(name) for name in sorted(BUNDLED_FILES)}
 #: The default gripper's name: the Robotiq 2F-85 from its collision meshes and 4-bar linkage (``robotiq_2f85`` is
-#: the same hand as boxes, 1.1-1.2x faster per rollout in ``bench/bench_rollouts.py``).
+#: the same hand as boxes, a little faster).
 DEFAULT_GRIPPER = "robotiq_2f85_mesh"
 #: The gripper of the object-centric (ACRONYM / GraspGen) sets and of ACRONYM files: the Franka Panda hand, the one
 #: ACRONYM itself uses.

@@ -1,45 +1,10 @@
 """Read and write grasp files in the ACRONYM format (Eppner et al., 2021; ``NVlabs/acronym``).
 
-An ACRONYM grasp file is one HDF5 file per object (ARCHITECTURE.md, Conventions)::
-
-    grasps/transforms                          (n, 4, 4) float   hand-base poses in the object's mesh frame, m
-    grasps/qualities/flex/object_in_gripper    (n,)      int     1 = the object stayed in the gripper (success)
-    grasps/qualities/graspgen/firm_hold        (n,)      int8    ours: 1 = held *and* its motion in the hand
-                                                                 stayed within the firm-hold tolerances
-    grasps/qualities/...                       (n,)      any     further per-grasp qualities (kept as read)
-    object/file                                string            mesh path, relative to a mesh root folder
-    object/scale                               float             metres per mesh-file unit (applied to the mesh)
-    object/mass, object/density, object/friction, object/volume   floats (kg, kg/m^3, -, m^3)
-    object/com                                 (3,)     float    centre of mass, scaled mesh frame, m
-    object/inertia                             (3, 3)   float    kg m^2
-    gripper/type                               string            ``panda`` (ACRONYM's own files; see below)
-    gripper/configuration                      (k,)     float    the gripper's joint configuration (opening)
-
-Frames. ACRONYM poses are the gripper's **hand base** (for the Panda: the hand frame at the flange), with z the
-approach direction and x the closing direction, exactly our TCP axes (:mod:`graspgen.grippers`); only the origin
-differs: our TCP (midway between the pads) sits ``tcp_offset`` along the base's +z (0.1034 m for the Panda hand).
-:func:`tcp_from_hand_base` and :func:`hand_base_from_tcp` convert; the offset comes from the gripper the file names
-in ``gripper/type``, so ``read_acronym(p).tcp_poses()`` gives TCP poses whatever gripper wrote the file. ACRONYM's
-own files say ``panda`` (``gripper/type`` of every file of its release and of its example
-``data/examples/grasps/Mug_10f6e09036350e92b3f21f1137c3c347_0.0002682457830986903.h5``, with
-``gripper/configuration`` ``[0.04]``), which is our name too, so the Panda is written as ``panda``; exports made
-before that wrote ``franka_panda`` (GraspGen's name), which :data:`GRIPPER_ALIASES` still reads as ``panda``.
-Strings are stored the way ACRONYM's own files store them (variable-length UTF-8 scalars) and read back whether
-they come as ``bytes`` or ``str``. Root attributes of the file (the object export writes ``protocol``) are read into
-:attr:`AcronymGrasps.attrs`.
-
-Two exports of a published dataset folder (:mod:`graspgen.io.acronym_export`) write one such file per object,
-``acronym/<object>.h5``, with the mesh as ``acronym/meshes/<object>.obj`` (in metres, so ``object/scale`` is 1;
-``object/file`` is ``meshes/<object>.obj``, relative to the ``acronym`` folder, ACRONYM's mesh root):
-
-* ``export_object_acronym``, ACRONYM's own meaning: the object-centric grasp sets of ``object_grasps.parquet``
-  (:mod:`graspgen.workflows.object_grasps`), labelled in free space by a free-space protocol (``acronym``: ACRONYM's
-  close-and-shake test). ``flex/object_in_gripper`` is that protocol's success (still in the hand: the
-  still-held label) and the four ``flex/object_motion_during_{closing,shaking}_{linear,angular}`` are its motion
-  measures (:data:`FLEX_MOTION`); the firm-hold label (:mod:`graspgen.sim.lift`) is the extra quality
-  ``graspgen/firm_hold`` (1 / 0), with the measures it reads, ``graspgen/max_rel_{translation,rotation}``.
-* ``export_acronym``: the scene-bound grasps of ``grasps.parquet`` (success = the table-top rollout's outcome 5),
-  in each object's mesh frame. Same file layout, but not ACRONYM's free-space label.
+One HDF5 file per object: ``grasps/transforms`` (n, 4, 4) hand-base poses in the mesh frame (m),
+``grasps/qualities/...`` per-grasp labels (``flex/object_in_gripper``; ours ``graspgen/firm_hold``), ``object/*``
+(mesh file, scale, mass properties) and ``gripper/{type,configuration}``. ACRONYM's hand base has our TCP axes; the
+TCP sits ``tcp_offset`` along its +z (:func:`tcp_from_hand_base`, :func:`hand_base_from_tcp`). The full layout and
+what the two exports of :mod:`graspgen.io.acronym_export` write: docs/format.md, "ACRONYM files".
 """
 
 from __future__ import annotations
@@ -251,7 +216,7 @@ def _qualities(group: h5py.Group, prefix: str = "") -> dict[str, np.ndarray]:
 
 
 def read_acronym(path: str | Path) -> AcronymGrasps:
-    """Read an ACRONYM grasp file (see the module docstring for the layout).
+    """Read an ACRONYM grasp file (layout: docs/format.md, "ACRONYM files").
 
     Required: ``grasps/transforms`` and ``object/file``; ``object/scale`` defaults to 1 and ``gripper/type`` to
     ``panda`` (the only gripper ACRONYM itself uses, by the name its files give it); everything else is optional.
@@ -331,7 +296,7 @@ def write_acronym(
     qualities: Mapping[str, Any] | None = None,
     attrs: Mapping[str, str] | None = None,
 ) -> None:
-    """Write grasps of one object as an ACRONYM grasp file (layout in the module docstring).
+    """Write grasps of one object as an ACRONYM grasp file (layout: docs/format.md, "ACRONYM files").
 
     Parameters
     ----------

@@ -1,31 +1,12 @@
-"""The card's label statistics in memory that does not grow with the table: exact up to a cap, then streamed
-figures and a deterministic sample.
+"""The card's label statistics in memory that does not grow with the table: exact up to a cap, then streamed figures
+and a deterministic sample.
 
-The card summarises each label column (n, mean, std, min, 5 %, median, 95 %, max, a histogram) and the labels'
-correlations (Pearson and Spearman, with pair counts). Quantiles and rank correlations need every value: exact in
-bounded memory they would need the table sorted out of core, once per label. So :class:`LabelTally`:
-
-- **keeps every value while the table has at most** :data:`EXACT_ROWS` **rows** (41 bytes a row with four labels:
-  11 MB at the cap): every figure is computed as before from the whole columns, so a card of that size (the default
-  and smoke configs' ~900 and ~60 grasps) is the same, byte for byte;
-- **beyond it, streams what merges exactly** in constant memory per label: the count, min and max, the mean and the
-  sum of squared deviations (merged by Chan, Golub and LeVeque's pairwise update), the count of each distinct value
-  while there are at most :data:`DISCRETE_LABEL_VALUES` (so per-value histograms, and the quantiles of such labels
-  -- robustness and pfc of n copies, a friction grid -- stay exact), and the pair counts of the correlation table.
-  Binned histograms are counted exactly in a second pass over the label columns once min and max are known
-  (:func:`binned_counts`). Only the quantiles of labels with more distinct values (epsilon) and the correlation
-  coefficients come from a sample, and the card says so (``label_sample``: the rows sampled, of how many, how);
-- **the sample is the** :data:`SAMPLE_ROWS` **rows with the smallest 64-bit hash of (scene_id, grasp_id)**
-  (:func:`row_hash`; bottom-k sampling). It needs no random state: the same rows whatever the row-group split, the
-  order of merges or the number of workers, and it is a uniform sample of the rows for ids not chosen against the
-  hash. Two bottom-k samples merge into the bottom-k of their union, so a tally per shard merges into the tally of
-  the file. A mergeable quantile sketch (KLL, t-digest) would bound the quantiles' error but gives no rank
-  correlation, and its figures depend on the order of merges; one bottom-k sample gives both, order-free. (Rows
-  whose hashes tie at the k-th smallest -- one chance in about 10^5 at ACRONYM's 17.7M rows -- could make the
-  sample depend on the order; they are not handled.)
-
-Held at most: :data:`EXACT_ROWS` rows while exact, ``2 * SAMPLE_ROWS`` while sampling (pruned to the
-:data:`SAMPLE_ROWS` smallest hashes whenever it reaches that), and the streamed figures (constant per label).
+:class:`LabelTally` keeps every value up to :data:`EXACT_ROWS` rows (every figure exact); beyond it it streams what
+merges exactly (count, min, max, mean, variance, counts of up to :data:`DISCRETE_LABEL_VALUES` distinct values, pair
+counts) and keeps the :data:`SAMPLE_ROWS` rows of smallest :func:`row_hash` of (scene_id, grasp_id) for the
+quantiles of continuous labels and the correlation coefficients; the card names the sample (``label_sample``).
+Memory: at most ``EXACT_ROWS`` rows, then ``2 * SAMPLE_ROWS``. Why this design:
+docs/decisions/2026-12-03-card-label-statistics.md.
 """
 
 from __future__ import annotations
@@ -141,18 +122,8 @@ class Moments:
 
 
 class LabelTally:
-    """The label columns of a table, fed row groups in order: every value up to a cap, then streamed figures and
-    a bottom-k sample (module docstring).
-
-    Parameters
-    ----------
-    labels : sequence of str
-        The label columns.
-    exact_rows : int
-        Rows up to which every value is kept (:data:`EXACT_ROWS`).
-    sample_rows : int
-        Rows of the sample past that (:data:`SAMPLE_ROWS`).
-    """
+    """The ``labels`` columns of a table, fed row groups in order: every value up to ``exact_rows``, then streamed
+    figures and a bottom-k sample of ``sample_rows`` rows (module docstring)."""
 
     def __init__(self, labels: Sequence[str], exact_rows: int = EXACT_ROWS, sample_rows: int = SAMPLE_ROWS):
         self.labels = list(labels)
@@ -285,9 +256,8 @@ def count_quantiles(values: np.ndarray, counts: np.ndarray, qs: Sequence[float])
 
 
 def binned_counts(groups: Iterable[np.ndarray], lo: float, hi: float, bins: int) -> np.ndarray:
-    """(bins,) int64 histogram over [lo, hi] of the finite values of every (n,) float64 array in ``groups`` (any
-    iterable, e.g. the row groups read one at a time), as :func:`graspgen.io.card_stats.label_summary` bins them:
-    each value nudged up by 1e-9 of the range (a value on an edge goes to the bin above)."""
+    """(bins,) int64 histogram over [lo, hi] of the finite values of the (n,) float64 arrays in ``groups`` (e.g. row
+    groups read one at a time), binned as :func:`graspgen.io.card_stats.label_summary` bins (an edge value goes up)."""
     total = np.zeros(bins, np.int64)
     for v in groups:
         v = np.asarray(v, np.float64)

@@ -1,67 +1,12 @@
 """The scenes as Contact-GraspNet's training data (``NVlabs/contact_graspnet``, Sundermeyer et al., ICRA 2021).
 
-Contact-GraspNet trains on table-top scenes: ``train.py`` calls ``data.load_scene_contacts(dataset_folder,
-scene_contacts_path=...)``, which reads every file of ``<dataset_folder>/<scene_contacts_path>/`` (sorted by name)
-with ``numpy.load(allow_pickle=False)`` and keeps five keys; its ``PointCloudReader`` renders each scene from
-``<dataset_folder>/<obj_paths[i]>`` and its ``tf_train_ops.load_contact_grasps`` turns the contacts into labels.
-:func:`export_contact_graspnet` writes a published dataset's scenes that way::
-
-    <root>/contact_graspnet/                      Contact-GraspNet's ``dataset_folder`` (``DATA.data_path``)
-        scene_contacts/0_train_<scene_id>.npz     one per scene with positives (``scene_contacts_path``), training
-        scene_contacts/1_test_<scene_id>.npz      scenes first in name order, then the held-out ones
-        meshes/<object>.obj                       the object meshes, metres (``obj_scales`` 1)
-        splits/scenes.json                        {"train": [scene ids], "test": [...], "num_test_scenes": k,
-                                                   "files": [...], "left_out": {scene id: why}}
-        splits/objects.json                       {"train": [object names], "test": [...]}
-
-The keys Contact-GraspNet reads, per scene file (float64):
-
-* ``grasp_transforms`` (n, 4, 4): the positives (see below) as Contact-GraspNet's grasp frame, the Panda hand base
-  of ACRONYM: z approach, x closing, its finger-centre plane :data:`CGN_DEPTH` (0.1034 m, ``build_6d_grasp``'s
-  ``gripper_depth`` and the z of ``gripper_control_points/panda_gripper_coords.yml``) along +z. Ours is the TCP
-  (midway between the pads, same axes), so ``T = Trans(0, 0, table_top) @ T_world_tcp @ Trans(0, 0, -0.1034)``
-  (:func:`cgn_grasp_from_tcp`): the same hand-base convention as our ACRONYM files, plus the table shift below.
-* ``scene_contact_points`` (n, 2, 3): the two contacts of each grasp as Contact-GraspNet defines them
-  (``mesh_utils.grasp_contact_location`` with the Panda's ``get_closing_rays_contact``): the first hit on the object
-  of a ray cast from each finger's pad centre, (+-:data:`CGN_FINGER_X`, 0, 0.1034) in the grasp frame, towards the
-  other finger, within :data:`CGN_RAY_REACH` (0.08 m); contact 0 from the +x finger, contact 1 from the -x finger
-  (:func:`cgn_contacts`). Contact-GraspNet's width label is ``|c0 - c1|`` and its approach label the grasp's z.
-* ``obj_paths`` (k,) str ``meshes/<object>.obj`` (relative to the folder), ``obj_scales`` (k,) ones, and
-  ``obj_transforms`` (k, 4, 4): every object of the scene, the pose of its mesh *centred on its vertex mean*, as
-  Contact-GraspNet's renderer loads a mesh (``SceneRenderer._load_object``: load, scale, subtract the mean of the
-  vertices), so ``T = Trans(0, 0, table_top) @ T_world_mesh @ Trans(mean)``.
-
-World frame: Contact-GraspNet's renderer (``scene_renderer.SceneRenderer``) draws its own table, a box of
-1.0 x 1.2 x 0.6 m centred on the origin, and nothing else of the support; ours has the support's top at z = 0. So
-every pose is shifted up by :data:`CGN_TABLE_TOP` (0.3 m) to stand on its table; a bin or a shelf is not drawn.
-
-Positives are what Contact-GraspNet treats as positive (it sets every contact of a file successful): from
-``placed_grasps.parquet`` when the object sets were made (the Panda, as ACRONYM's scenes: ``success`` = the
-object-level label and free in the scene), else from ``grasps.parquet`` (the scene gripper's rollouts in the scene:
-outcome 5), and in both cases only grasps whose two rays hit (Contact-GraspNet drops the others too). Grasps are
-sorted by object index, then grasp id. Kept beside, under keys Contact-GraspNet does not read:
-
-* ``obj_names`` (k,), ``obj_grasp_idcs`` (k,) int64: the end of each object's grasps in the sorted positives (the
-  key Contact-GraspNet's own scene generator writes), ``scene_id`` (0-d), ``source`` (0-d: ``placed_grasps`` or
-  ``grasps``), ``gripper`` (0-d), ``table_top`` (0-d, m);
-* ``grasp_ids``, ``grasp_obj_idcs`` (n,) int64, ``grasp_widths`` (n,) (our ``width``, m) and the source's labels
-  as ``grasp_<label>``: placed grasps ``object_outcome``, ``scene_code``; scene grasps ``outcome``, ``firm``,
-  ``robustness``, ``pfc``, ``epsilon`` (those present; NaN / 0 for nulls);
-* every other row of the scene (negatives, and positives whose rays missed) as ``other_grasp_transforms``,
-  ``other_contact_points`` (NaN where a ray missed), ``other_grasp_ids``, ``other_obj_idcs``, ``other_success``,
-  ``other_widths`` and ``other_<label>``.
-
-Files are written atomically, each ``.npz`` as a zip with fixed timestamps (``numpy.savez`` stamps the time), so the
-same dataset gives the same bytes. Splits (:func:`graspgen.io.nvidia_graspgen.split_of`, the GraspGen export's hash
-split with the same fraction, ``valid`` named ``test``): Contact-GraspNet holds out the *last*
-``DATA.num_test_scenes`` files by name, so training scenes are named ``0_train_*`` and held-out ones ``1_test_*``
-(:func:`scene_file`); set ``num_test_scenes`` to ``splits/scenes.json``'s value. Objects recur across scenes, so a
-test scene holds new arrangements of objects also seen in training; ``splits/objects.json`` gives the object split
-of the GraspGen export.
-
-A scene without a positive gets no file (it is listed in ``splits/scenes.json``'s ``left_out``): Contact-GraspNet's
-``load_contact_grasps`` skips such a scene while its point-cloud reader does not, which would pair every later
-scene's renders with the labels of the scene after it.
+:func:`export_contact_graspnet` writes ``<root>/contact_graspnet/``: ``scene_contacts/{0_train,1_test}_<scene>.npz``
+(one per scene with a positive), ``meshes/<object>.obj`` and ``splits/{scenes,objects}.json``. Each ``.npz`` holds
+the keys Contact-GraspNet reads (``grasp_transforms`` (n, 4, 4) in its Panda hand-base frame,
+``scene_contact_points`` (n, 2, 3) from its closing rays, ``obj_paths``, ``obj_scales``, ``obj_transforms``), every
+pose shifted up by :data:`CGN_TABLE_TOP` onto its renderer's table, plus our ids, labels and the other rows. Files
+are written atomically with fixed zip timestamps, so the same dataset gives the same bytes. Every key, the frames and
+the split rule: docs/format.md, "Contact-GraspNet files".
 """
 
 from __future__ import annotations
@@ -210,7 +155,7 @@ def write_npz(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
 def export_contact_graspnet(root: Path, *, test_fraction: float = TEST_FRACTION,
                             table_top: float = CGN_TABLE_TOP) -> list[str]:
     """A published dataset's scenes as Contact-GraspNet's training data under ``root/contact_graspnet/`` (the
-    module docstring's layout, keys and frames).
+    layout, keys and frames in docs/format.md).
 
     Parameters
     ----------
@@ -255,7 +200,7 @@ def export_contact_graspnet(root: Path, *, test_fraction: float = TEST_FRACTION,
                 meshes[name] = _mesh(root, name)
                 written.append(f"{FOLDER}/meshes/{name}.obj")
         arrays = scene_arrays(sid, names, poses, rows, {n: meshes[n] for n in names}, source, labels, table_top)
-        if not len(arrays["grasp_transforms"]):  # Contact-GraspNet needs a positive per scene (module docstring)
+        if not len(arrays["grasp_transforms"]):  # Contact-GraspNet needs a positive per scene (docs/format.md)
             left_out[sid] = "no positive grasp with two contacts"
             continue
         kept[sid] = scene_file(sid, split[sid])
@@ -285,7 +230,7 @@ def scene_file(scene_id: str, split: str) -> str:
 def scene_arrays(scene_id: str, names: list[str], poses: np.ndarray, rows: pa.Table | None,
                  meshes: Mapping[str, tuple[trimesh.Trimesh, np.ndarray]], source: str, labels: tuple[str, ...],
                  table_top: float = CGN_TABLE_TOP) -> dict[str, np.ndarray]:
-    """One scene's file (the module docstring's keys) from its objects and its grasp rows.
+    """One scene's file (the keys of docs/format.md) from its objects and its grasp rows.
 
     Parameters
     ----------

@@ -1,108 +1,12 @@
 """Write and read grasp sets in the dataset layout of NVIDIA's GraspGen (``NVlabs/GraspGen``, Murali et al., 2025).
 
-The layout is the one GraspGen's training data loader reads (``grasp_gen/dataset/dataset_utils.py``:
-``GraspJsonDatasetReader``, ``load_object_grasp_datapoint_objaverse``; the dataset format page of its docs) and the one
-NVIDIA's GraspDataGen writes for it (its GraspGen workflow page)::
-
-    <root>/
-        objects/<object>.obj                          meshes in metres (scale 1): GraspGen's ``object_root_dir``
-        grasp_data/<gripper>/<object>.grasps.json     one file per object; the folder is its ``grasp_root_dir``
-        grasp_data/<gripper>/map_uuid_to_path.json    {"<object>.obj": "<object>.grasps.json", ...}
-        splits/<gripper>/train.txt                    one object key per line; the folder is its ``root_dir``
-        splits/<gripper>/valid.txt
-
-``<gripper>`` is the name GraspGen gives the gripper (:data:`GRASPGEN_GRIPPER_NAMES`: ``franka_panda`` for our
-``panda``, ``robotiq_2f_85`` for our 2F-85 models; GraspGen registers a gripper by its file
-``config/grippers/<name>.yaml`` and its training scripts build ``grasp_data/$GRIPPER_NAME`` and
-``splits/$GRIPPER_NAME`` from it), so its loaders and scripts find our export under their defaults; a gripper
-GraspGen has no config for keeps our name. Exports made before this used our names (``grasp_data/panda``);
-:func:`read_graspgen` reads both and says which folder each entry came from (:attr:`GraspGenEntry.folder`).
-
-An object's *key* is its mesh path relative to the object dataset root, ``<object>.obj``: the lines of the split
-files, the ``object.file`` of its JSON and the keys of ``map_uuid_to_path.json``. Where GraspGen's loader
-(NVlabs/GraspGen at a56d518) looks, and so which folders to pass (``<root>`` is ``OUT/dataset/graspgen`` for a
-published dataset):
-
-* ``data.object_root_dir = <root>/objects``: the mesh is ``os.path.join(object_root_dir, key)``
-  (``grasp_gen/dataset/dataset_utils.py:880``); only when that file is missing does it read a
-  ``map_uuid_to_path[_simplified].json`` *in the object root* (lines 883-889, Objaverse UUIDs), which we do not write
-  because every key is a file there.
-* ``data.grasp_root_dir = <root>/grasp_data/<gripper>``: ``GraspJsonDatasetReader`` reads
-  ``<grasp_root_dir>/map_uuid_to_path.json`` ({key: JSON file name}, lines 77-84) and opens
-  ``<grasp_root_dir>/<JSON file name>`` (line 141); without the mapping it scans ``*.json`` and writes one there
-  (lines 85-93), which a read-only mount refuses, so we write it.
-* ``data.root_dir = <root>/splits/<gripper>``: it reads ``<root_dir>/{train,valid}.txt`` (``dataset.py:427``).
-
-GraspGen's own scripts spell these the same way: mount ``<root>`` as its grasp dataset and ``<root>/objects`` as its
-object dataset (``docker/run.sh --grasp_dataset <root> --object_dataset <root>/objects``), and
-``runs/train_graspgen_franka_panda_gen.sh`` (lines 21-26) passes ``/object_dataset``,
-``$GRASP_DIR/grasp_data/$GRIPPER_NAME`` and ``$GRASP_DIR/splits/$GRIPPER_NAME`` unchanged. Each JSON file::
-
-    {
-      "object":  {"file": "<object>.obj", "scale": 1.0},
-      "gripper": {"name": "<gripper>", "width": w, "depth": d,
-                  "transform_offset_from_asset_to_graspgen_convention": [[0, 0, 0], [0, 0, 0, 1]],
-                  "tcp_offset": tcp_offset, "source_gripper": "<our gripper name>"},
-      "grasps":  {"transforms": [(4, 4) nested lists, ...], "object_in_gripper": [true, false, ...],
-                  "grasp_id": [int, ...], "protocol": "<protocol>",
-                  "contact_locations": [[[x, y, z], [x, y, z]], ...], "firm_hold": [true, false, ...]}
-    }
-
-GraspGen itself reads ``object.file``, ``object.scale``, ``grasps.transforms``, ``grasps.object_in_gripper`` (JSON
-booleans: the loader indexes the poses with them as a boolean mask, so 0/1 integers would pick rows 0 and 1) and
-``grasps.contact_locations`` (``dataset_utils.py:907-944``); the ``gripper`` block is the one GraspDataGen writes
-(informational: GraspGen takes its gripper from its own config ``config/grippers/<name>.yaml``), and its ``width`` and
-``depth`` are that config's (:data:`GRASPGEN_GRIPPER_SIZES`: 0.10537486 and 0.10527314 m for ``franka_panda``), so the
-block says what GraspGen will use; for a gripper GraspGen has no config for they are our ``max_width`` and
-``tcp_offset``, what such a config should say. ``tcp_offset`` (our TCP, base link -> pad midpoint along +z),
-``source_gripper`` (our gripper name), ``grasp_id`` and ``protocol`` are ours, for the way back to our tables.
-
-Contacts. ``grasps.contact_locations`` is GraspGen's key (``dataset_utils.py:927-929``), one (2, 3) pair per grasp in
-the mesh frame of the poses, metres: GraspGen keeps the rows of the positives, drops a positive whose pair holds a
-NaN and skips an object none of whose positives has a pair (lines 931-944); without the key it takes each positive's
-base-link origin as its contact (lines 956-960, "HACK - Only works for single cup suction gripper"). Its contact-based
-heads read a pair as in ACRONYM's ``contact_points``: the closing direction ``c1 - c0`` and the opening
-``|c1 - c0|`` (``dataset.py:251-261``, both orders). Ours, from the table's ``contact_points`` / ``contact_fingers``
-(the contacts at the end of closing, object frame): contact 0 the mean of the left pad's (finger 0, on -x) contact
-points, contact 1 the right pad's (+x), so ``c1 - c0`` points along the grasp's +x; a pad without a contact gives NaN
-(written as the token ``NaN``, which Python's ``json`` and so GraspGen read; the file is then not strict JSON). A
-positive has a contact on each pad; negatives often have none, and GraspGen never reads theirs. Tables without those
-columns get no ``contact_locations``. Labels: ``object_in_gripper``, the one GraspGen trains on, is our still-held label
-(the table's ``success``: outcome 5, the object still between the fingers after the protocol's disturbance, as
-ACRONYM's and GraspDataGen's labels are); ``firm_hold`` (ours, written when the table has ``firm``; GraspGen ignores
-it) is the firm-hold label (still held and the object's motion in the hand within the firm-hold tolerances,
-:mod:`graspgen.sim.lift`). To train GraspGen on firm holds, write ``firm`` as ``success`` (:class:`GraspGenObject`).
-Floats are written with Python's shortest round-trip repr, so the JSON holds the poses exactly.
-
-Frames (stated precisely, and tested). ``grasps.transforms`` are the **gripper base-link frame** in the object's mesh
-frame (GraspGen: "4x4 homogeneous transformation matrix of the base link of gripper"), metres. GraspGen's gripper
-convention is z approach (positive z towards the object), x the fingers' closing direction. Our hand base
-(:mod:`graspgen.grippers`: the flange / hand frame) has exactly these axes, and our TCP (midway between the pads) is
-``tcp_offset`` along its +z. So we write ``T_base = T_tcp @ Trans(0, 0, -tcp_offset)``
-(:func:`graspgen.io.acronym.hand_base_from_tcp`, the same frame ACRONYM files hold), and the identity
-``transform_offset_from_asset_to_graspgen_convention`` (``franka_panda.yaml:24``; the loader post-multiplies the poses
-by it, ``dataset_utils.py:609-631``). For the Panda this base link is the one GraspGen's ``franka_panda`` gripper is
-built in (``config/grippers/franka_panda.py:11-21``: hand mesh at the origin, open fingers at x = +-0.04,
-z = 0.0584, where our ``assets/grippers/panda`` fingers are), so GraspGen's gripper mesh lands on ours and the labels
-describe the pose it sees: the poses are **not** shifted. GraspGen's ``depth`` (0.10527314 m for ``franka_panda``,
-``franka_panda.yaml:23``; "the distance from the gripper root/base link frame to the gripper tool tip frame",
-``robot.py:86-89``) is not our TCP offset (0.1034 m, ACRONYM's pad midpoint): its tool point
-``T_base @ Trans(0, 0, depth)`` lies 1.87 mm beyond our TCP along the approach. That point is all the 1.87 mm moves,
-and it is the same point GraspGen derives on its own Panda data: its control points ``(+-width/2, 0, depth/2)``,
-``(+-width/2, 0, depth)`` (``robot.py:79-81``, loaded by ``franka_panda.py:52-62``) for the training losses and
-metrics, the translation error of its metrics (``metrics.py:84-97``), the visibility filter that drops a positive
-whose tool point is farther than 3 cm (mean of 5 nearest) from the rendered cloud (``dataset_utils.py:248-289``,
-``robot.py:385-392``) and M2T2's grasp rebuilt from a contact (``action_decoder.py:33-37``). Writing
-``T_tcp @ Trans(0, 0, -depth)`` instead would put GraspGen's tool point on our TCP but its gripper 1.87 mm deeper
-than the grasp that was labelled. The meshes are written in metres in the same mesh frame as the poses, so
-``object.scale`` is 1 (GraspGen scales the mesh by it, not the poses).
-
-Splits (:func:`split_of`): deterministic, by a hash of the object name, not by a random draw: an object goes to
-``valid`` when the first 8 bytes of ``sha256(name)``, read as a big-endian integer and divided by 2**64, are below
-``valid_fraction``, else to ``train``. The same object lands in the same split whatever else is in the dataset, for
-every gripper and run, so adding objects never moves one between splits; the valid share only approaches
-``valid_fraction`` for many objects (with few, one split may be empty; both files are always written). An explicit
-``{name: "train" | "valid"}`` assignment overrides the hash.
+``<root>/objects/<object>.obj`` (metres), ``<root>/grasp_data/<gripper>/<object>.grasps.json`` with
+``map_uuid_to_path.json``, and ``<root>/splits/<gripper>/{train,valid}.txt``, where ``<gripper>`` is GraspGen's name
+for the gripper (:data:`GRASPGEN_GRIPPER_NAMES`). Poses are the gripper's hand base in the mesh frame (not shifted
+to GraspGen's tool tip); ``object_in_gripper`` is the still-held label, ``firm_hold`` ours; ``contact_locations``
+(n, 2, 3) the left and right pad contacts, NaN for a pad without one; splits by a hash of the object name
+(:func:`split_of`). The layout, the loader lines it was checked against and the frame argument:
+docs/format.md, "NVIDIA GraspGen layout".
 """
 
 from __future__ import annotations
@@ -155,8 +59,8 @@ at commit a56d518: ``franka_panda``, ``robotiq_2f_85``, ``robotiq_2f_140``, ``si
 GRASPGEN_GRIPPER_SIZES = {"franka_panda": (0.10537486, 0.10527314)}
 """GraspGen's ``width`` and ``depth`` (m) of the grippers whose config has them (``config/grippers/franka_panda.yaml``
 lines 22-23 at commit a56d518; ``robotiq_2f_85.yaml`` has neither): what GraspGen derives its control points and tool
-point from (module docstring, Frames). Written as the JSON's ``gripper.width`` / ``gripper.depth``; a gripper not
-listed gets our ``max_width`` and ``tcp_offset`` there, the values a GraspGen config for it should have."""
+point from (docs/format.md, "NVIDIA GraspGen layout"). Written as the JSON's ``gripper.width`` / ``gripper.depth``; a
+gripper not listed gets our ``max_width`` and ``tcp_offset`` there, the values a GraspGen config for it should have."""
 
 _OUR_NAME = {"franka_panda": "panda", "robotiq_2f_85": "robotiq_2f85"}
 """GraspGen's folder name -> our gripper, for files without ``gripper.source_gripper``."""
@@ -252,7 +156,7 @@ def graspgen_gripper_name(name: str) -> str:
 
 
 def split_of(name: str, valid_fraction: float) -> str:
-    """``valid`` or ``train`` for an object name, by a hash (see the module docstring).
+    """``valid`` or ``train`` for an object name, by a hash.
 
     Parameters
     ----------
@@ -318,7 +222,7 @@ def write_graspgen(
     valid_fraction: float = 0.2,
     splits: Mapping[str, str] | None = None,
 ) -> list[str]:
-    """Write grasp sets in GraspGen's dataset layout under ``root`` (see the module docstring).
+    """Write grasp sets in GraspGen's dataset layout under ``root`` (docs/format.md).
 
     Parameters
     ----------
@@ -483,7 +387,7 @@ def _read_mesh(path: Path, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def read_graspgen(root: str | Path) -> list[GraspGenEntry]:
-    """Read a GraspGen-layout folder (the module docstring's layout): every ``grasp_data/<gripper>/*.json`` but
+    """Read a GraspGen-layout folder (docs/format.md): every ``grasp_data/<gripper>/*.json`` but
     ``map_uuid_to_path.json``, with its split from ``splits/<gripper>/{train,valid}.txt``. The gripper folders may
     have GraspGen's names (``franka_panda``: exports from now on, and GraspGen's own data) or ours (``panda``: older
     exports); each entry names the folder it came from (``folder``) and our gripper (``gripper``).

@@ -86,7 +86,7 @@ def object_tree(
     """The HDF5 layout of one object shard (see the ``objects`` stage's docstring).
 
     ``friction`` (the object's own sliding friction coefficient) and ``category`` become attributes only when
-    given, so the shard of an object without them is what it was before they existed.
+    given, so an object without them keeps the same shard bytes.
     """
     parts = prepared.convex_parts
     v_off = np.cumsum([0] + [len(v) for v, _ in parts], dtype=np.int64)

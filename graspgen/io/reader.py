@@ -1,31 +1,12 @@
 """Reading a published dataset (``OUT/dataset``, :mod:`graspgen.io.dataset_table`): :func:`open_dataset`.
 
 Lazy: opening reads the Parquet footer and ``card.json`` only; grasps are read with the filter pushed into the
-Parquet reader (row groups hold whole scenes, so a filter on ``scene_id`` touches one group), and a scene's view
-is read from its HDF5 file alone, one view at a time. It needs numpy, pyarrow and h5py only -- no pandas (use
-``.to_pandas()`` on a table when it is installed), no MuJoCo, no torch (:class:`TorchDataset` imports it when first
-used)::
+Parquet reader (row groups hold whole scenes or objects), a scene view from its HDF5 file alone. Needs numpy,
+pyarrow and h5py only (torch when :class:`TorchDataset` is first used). Example: README.md, "Reading a dataset".
 
-    from graspgen.io.reader import open_dataset
-
-    ds = open_dataset("out")                      # the run folder or its dataset/ folder
-    good = ds.grasps(outcome="success", columns=["scene_id", "grasp_id", "robustness"])   # a pyarrow.Table
-    g = ds.grasp("scene_000000", 3)               # one row: poses as (4, 4) arrays
-    view = ds.view(g.scene_id, 0)                 # K, T_world_camera, rgb, depth, segmentation, point cloud
-    points, ids = view.cloud("camera")            # (N, 3) float32 m, (N,) int16 segmentation ids
-    for sample in ds.samples(outcome="success"):  # (scene, view, its grasps) for training
-        ...
-    mug = ds.object_grasps("mug")                 # one object's free-space set: only its row groups are read
-    placed = ds.placed_grasps("scene_000000")     # the sets placed in one scene
-
-The object sets are read from ``object_grasps.parquet`` / ``placed_grasps.parquet`` (row groups of whole objects /
-scenes, selected by their statistics) or from folders ``object_grasps/`` / ``placed_grasps/`` of Parquet files of
-the same schema (e.g. one file per object).
-
-Conventions (as in the shards): metres, radians; poses map a frame to the world (``pose_world``: TCP to world,
-z approach, x closing); cameras are OpenCV (x right, y down, z forward) with ``T_world_camera`` camera-to-world;
-segmentation and point ids are the object's index in the scene (``object_index``), -1 nothing, -2 support,
--3 ground (ground points are not in the clouds).
+Conventions (as in the shards): metres, radians; poses map a frame to the world (``pose_world``: TCP to world);
+cameras OpenCV with ``T_world_camera`` camera-to-world; segmentation and point ids are the object's index in the
+scene, -1 nothing, -2 support, -3 ground (ground points are not in the clouds).
 """
 
 from __future__ import annotations
@@ -268,18 +249,9 @@ class GraspDataset:
     def grasps(
         self, columns: Sequence[str] | None = None, filter: pc.Expression | None = None, **where: Any
     ) -> pa.Table:
-        """The grasps that match, as a pyarrow Table (``.to_pandas()`` for a DataFrame).
-
-        Parameters
-        ----------
-        columns : sequence of str, optional
-            Columns to read (all by default; the list columns are the bulk of the file).
-        filter : pyarrow.compute.Expression, optional
-            Any condition, e.g. ``pc.field("robustness") >= 0.8``.
-        **where
-            Column equalities, ANDed: ``outcome=5``, ``outcome="success"`` (a name), ``object_name=["box", "can"]``
-            (any of), ``scene_id="scene_000003"``.
-        """
+        """The grasps that match, as a pyarrow Table: ``columns`` to read (default all), ``filter`` any
+        ``pyarrow.compute.Expression``, and ``**where`` column equalities ANDed (``outcome=5`` or ``outcome="success"``,
+        ``object_name=["box", "can"]`` for any of, ``scene_id="scene_000003"``)."""
         expr = self._expression(filter, where)
         cols = None if columns is None else list(columns)
         if cols is not None:
@@ -303,13 +275,9 @@ class GraspDataset:
         self, object_name: str | Sequence[str] | None = None, columns: Sequence[str] | None = None,
         filter: pc.Expression | None = None, **where: Any,
     ) -> pa.Table:
-        """Rows of the object-centric sets (``object_grasps.parquet``, free-space labels), sorted by object.
-
-        ``object_name`` (one or a list) reads only the row groups (or files) that can hold those objects, by their
-        ``object_name`` statistics, so one object costs about one row group however many objects the set has.
-        ``columns``, ``filter`` and ``**where`` are as in :meth:`grasps`. Either layout is read: one file
-        ``object_grasps.parquet`` (row groups of whole objects, by name) or a folder ``object_grasps/`` of Parquet
-        files of that schema (e.g. one per object).
+        """Rows of the object-centric sets (``object_grasps.parquet`` or a folder ``object_grasps/`` of that schema),
+        sorted by object; ``object_name`` reads only the row groups or files whose statistics can hold it; ``columns``,
+        ``filter``, ``**where`` as in :meth:`grasps`.
 
         Raises
         ------
@@ -385,17 +353,9 @@ class GraspDataset:
         filter: pc.Expression | None = None,
         **where: Any,
     ) -> Iterator[Sample]:
-        """``(scene, view, grasps)`` samples, scene by scene (one row group in memory at a time).
-
-        Parameters
-        ----------
-        views : int or sequence of int, optional
-            Which views of each scene (all by default).
-        columns : sequence of str, optional
-            Grasp columns to carry (``pose_world`` and the ids always come along); all by default.
-        filter, **where
-            As in :meth:`grasps`. Scenes without a matching grasp are skipped.
-        """
+        """``(scene, view, grasps)`` samples, scene by scene (one row group in memory at a time), for ``views`` (default
+        all); ``columns`` to carry beside ``pose_world`` and the ids; ``filter``, ``**where`` as in :meth:`grasps`.
+        Scenes without a matching grasp are skipped."""
         import pyarrow.dataset as pads
 
         expr = self._expression(filter, where)
@@ -446,23 +406,10 @@ def _import_torch() -> Any:
 class _TorchSamples:
     """The body of :class:`TorchDataset` (a ``torch.utils.data.Dataset`` subclass made when first used).
 
-    Item ``i`` is one (scene, view) of the scenes with matching grasps, as a dict: ``points`` (N, 3) float32 and
-    ``point_ids`` (N,) int64 in ``frame``, ``poses`` (m, 4, 4) float32 grasp poses in ``frame``, one float32 tensor
-    (m,) per column of ``labels`` (nulls as NaN), ``scene_id`` (str) and ``view`` (int). Clouds and grasp counts
-    vary per item: batch with ``collate_fn=list`` (or pad).
-
-    Parameters
-    ----------
-    root : path
-        The dataset folder (or the run folder).
-    labels : sequence of str
-        Numeric columns to return per grasp.
-    frame : str
-        ``"camera"`` (the view's frame, the usual input of a grasp network) or ``"world"``.
-    views : int or sequence of int, optional
-        Views per scene (all by default).
-    **where
-        Grasp filter, as in :meth:`GraspDataset.grasps`.
+    Item ``i`` is one (scene, view) with matching grasps (``**where`` as in :meth:`GraspDataset.grasps`), a dict:
+    ``points`` (N, 3) float32 and ``point_ids`` (N,) int64 in ``frame`` (``"camera"`` or ``"world"``), ``poses``
+    (m, 4, 4) float32 in ``frame``, one (m,) float32 tensor per column of ``labels`` (nulls NaN), ``scene_id``,
+    ``view``. Sizes vary per item: batch with ``collate_fn=list`` (or pad).
     """
 
     def __init__(

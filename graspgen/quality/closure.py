@@ -1,37 +1,11 @@
 """Whether a grasp's wrenches hold: the Ferrari-Canny epsilon from their convex hull, and force closure by a linear
-program.
+program; pure numpy/scipy.
 
-The wrench columns come from :func:`graspgen.quality.wrench.grasp_matrix` (the contact model is there). Pure
-numpy/scipy; usable without the pipeline.
-
-The grasp wrench space is ``conv(columns)`` (total normal force bounded by 1) and the Ferrari-Canny epsilon is the
-radius of the largest origin-centred ball inside it; 0 when the origin is not strictly inside.
-
-Why the rank check: two point contacts cannot resist torque about the line joining them, so their wrenches lie in
-a 5-D subspace of R^6. Qhull cannot build a 6-D hull of a flat set, and joggling (option ``QJ``) only hides that by
-fabricating a thin hull. So the rank is tested first and a flat set scores 0.0; ``QJ`` is never used.
-
-Two independent decisions are offered and agree (``tests/graspgen/quality/test_wrench.py`` checks it on 1,000
-random grasps):
-
-* :func:`ferrari_canny` -- exact epsilon from the hull facets (``scipy.spatial.ConvexHull``);
-* :func:`force_closure` -- a linear program (``scipy.optimize.linprog``), no hull: the origin is strictly inside
-  ``conv(W)`` iff ``rank W = 6`` and some strictly positive ``lambda`` has ``W lambda = 0``.
-
-Tolerances
-----------
-* A wrench matrix is flat (rank < 6) when ``sigma_min <= RANK_RTOL * sigma_max``. Since ``epsilon <= sigma_min``
-  (the set's half-width along the last left singular vector is at most ``sigma_min``) and ``sigma_max >= 1`` (every
-  force column has norm >= 1), this only discards sets whose epsilon would be negligible anyway.
-* Epsilons at or below :data:`EPSILON_TOL` are reported as exactly 0.0.
-
-Speed
------
-The 6-D hull is the cost. It is first built without qhull's facet merging (option ``Q0``, about 3x faster on these
-inputs), and that result is accepted only if every input point lies inside every reported facet plane (within
-:data:`_VERIFY_TOL`); a plane that supports the set can only over-, never under-state its distance, and qhull
-stops with an error when unmerged precision problems break the hull. On any error or failed check the hull is
-rebuilt with qhull's default merging for 6-D (``Qx``), whose failure means the input is degenerate: epsilon 0.0.
+The wrench columns come from :func:`graspgen.quality.wrench.grasp_matrix` (the contact model is there). Epsilon is
+the radius of the largest origin-centred ball inside ``conv(columns)`` (total normal force bounded by 1): 0.0 when
+the columns are flat (rank < 6, tested before qhull), when the origin is not strictly inside, or at or below
+:data:`EPSILON_TOL`. :func:`force_closure` decides independently, without a hull; the two agree but within tolerance
+of the boundary. Why rank first, the checked fast hull and the LP: docs/decisions/2026-11-22-epsilon-hull.md.
 """
 
 from __future__ import annotations
@@ -107,24 +81,9 @@ def _epsilon(w: np.ndarray) -> float:
 
 
 def ferrari_canny_from_wrenches(wrenches) -> float:
-    """Ferrari-Canny epsilon of a wrench set: radius of the largest origin-centred ball inside its convex hull.
-
-    Parameters
-    ----------
-    wrenches : (6, n) float
-        Wrench columns, e.g. from :func:`~graspgen.quality.wrench.grasp_matrix`, dimensionless.
-
-    Returns
-    -------
-    float
-        ``epsilon >= 0``, in the wrenches' units. 0.0 when the columns are flat (rank < 6; qhull is not called),
-        when the origin is not strictly inside the hull, when epsilon <= :data:`EPSILON_TOL`, or when qhull
-        reports the input degenerate even with merging (only near-flat sets, whose epsilon is negligible).
-
-    Notes
-    -----
-    Invariant under any orthogonal map of R^6 applied to all columns.
-    """
+    """Ferrari-Canny epsilon (>= 0, in the wrenches' units) of ``wrenches`` (6, n): the radius of the largest
+    origin-centred ball inside their convex hull; 0.0 as the module docstring says, or when qhull finds the input
+    degenerate even with merging. Invariant under any orthogonal map of R^6."""
     return _epsilon(_check_wrenches(wrenches))
 
 
@@ -138,17 +97,14 @@ def ferrari_canny(
     num_cone_edges=8,
     torsional_friction=0.0,
 ) -> float:
-    """Ferrari-Canny epsilon of a grasp (the L1 variant: total normal force bounded by 1).
-
-    The radius of the largest origin-centred ball inside the convex hull of the columns of
-    :func:`~graspgen.quality.wrench.grasp_matrix`; parameters as there.
+    """Ferrari-Canny epsilon of a grasp (the L1 variant: total normal force bounded by 1); parameters as in
+    :func:`~graspgen.quality.wrench.grasp_matrix`.
 
     Returns
     -------
     float
-        Dimensionless ``epsilon >= 0``: the largest wrench (torque divided by ``torque_scale``) that the grasp can
-        resist in every direction with unit total normal force. 0.0 when not in force closure; see
-        :func:`ferrari_canny_from_wrenches`.
+        Dimensionless ``epsilon >= 0``: the largest wrench (torque over ``torque_scale``) the grasp resists in every
+        direction with unit total normal force; 0.0 when not in force closure.
 
     Raises
     ------
@@ -157,12 +113,9 @@ def ferrari_canny(
 
     Notes
     -----
-    Invariant under translating points and centre of mass together, and under scaling points, centre of mass,
-    ``torque_scale`` and ``torsional_friction`` by the same factor. Under a rotation of the whole grasp it is
-    exactly invariant only for the 24 rotations that map coordinate axes to coordinate axes, with an even
-    ``num_cone_edges`` (see :func:`~graspgen.quality.wrench.tangent_basis`). Under other rotations each polygonal cone
-    turns about its normal, and epsilon stays between its values for friction ``mu cos(pi/m)`` and ``mu / cos(pi/m)``
-    (the polygonal cones inscribed in and circumscribing the true cone).
+    Invariant under translating points and centre of mass together and under scaling lengths together; under rotations
+    only for the 24 axis-permuting ones with even ``num_cone_edges``, else bounded by the values for friction
+    ``mu cos(pi/m)`` and ``mu / cos(pi/m)``.
     """
     return _epsilon(
         _checked_wrenches(points, normals, center_of_mass, friction, torque_scale, num_cone_edges, torsional_friction)
@@ -193,27 +146,8 @@ def _force_closure(w: np.ndarray) -> bool:
 
 
 def force_closure_from_wrenches(wrenches) -> bool:
-    """Whether the origin is strictly inside the convex hull of the wrench columns; a linear program, no hull.
-
-    Formulation: the origin is in the interior of ``conv(w_1..w_n)`` iff ``rank W = 6`` and some strictly positive
-    ``lambda`` has ``W lambda = 0``. (All-positive barycentric weights put the origin in the relative interior, and
-    the affine hull of a set containing the origin is its span, R^6 at rank 6. Conversely, an interior origin is a
-    convex combination of the points and of a small negative multiple of their centroid, whose weights are all
-    positive.) Positivity is measured by the margin LP
-
-        maximise t  subject to  W lambda = 0,  sum(lambda) = 1,  lambda_j >= t,  t <= 1,
-
-    solved by HiGHS at 1e-10 feasibility tolerances; force closure iff ``rank W = 6`` (same test as
-    :func:`ferrari_canny_from_wrenches`) and ``t* > LP_MARGIN_TOL``.
-
-    Parameters
-    ----------
-    wrenches : (6, n) float
-        Wrench columns.
-
-    Returns
-    -------
-    bool
+    """Whether the origin is strictly inside the convex hull of ``wrenches`` (6, n): rank 6 and a margin LP over
+    strictly positive weights ``lambda`` with ``W lambda = 0`` (``t* > LP_MARGIN_TOL``); no hull.
 
     Raises
     ------
@@ -235,21 +169,8 @@ def force_closure(
     num_cone_edges=8,
     torsional_friction=0.0,
 ) -> bool:
-    """Whether the grasp is in force closure, decided by a linear program (independently of the hull).
-
-    Parameters as in :func:`~graspgen.quality.wrench.grasp_matrix`; the formulation is described in
-    :func:`force_closure_from_wrenches`. Agrees with ``ferrari_canny(...) > 0`` except within numerical tolerance of the
-    boundary.
-
-    Returns
-    -------
-    bool
-
-    Raises
-    ------
-    SettingsError
-        On a bad argument; the message starts with the argument's name.
-    """
+    """Whether the grasp is in force closure, by the linear program of :func:`force_closure_from_wrenches`; parameters
+    as in :func:`~graspgen.quality.wrench.grasp_matrix`. Raises :class:`SettingsError` on a bad argument."""
     return _force_closure(
         _checked_wrenches(points, normals, center_of_mass, friction, torque_scale, num_cone_edges, torsional_friction)
     )

@@ -1,26 +1,11 @@
 """Analytic grasp quality: Ferrari-Canny epsilon of a parallel-jaw grasp's contacts, and the friction label.
 
-The wrench maths lives in :mod:`graspgen.quality.wrench` and :mod:`graspgen.quality.closure`; this module turns the
-contacts a grasp produces (from a rollout or from :func:`graspgen.geometry.contacts.closing_contacts`) into the contact
-model the metric uses. Which contacts a grasp's epsilon is computed from is :mod:`graspgen.quality.contact_set`; the
-contact noise of ``pfc_contact`` is :mod:`graspgen.quality.contact_noise`; the metrics table is
-:mod:`graspgen.workflows.metrics`.
-
-Contact models (``contact_model``):
-
-``"pad"`` (default)
-    Each pad's contact patch becomes one soft-finger contact at the patch centroid with the mean inward normal.
-    Its torsional friction is ``max(torsional_friction, 2/3 * friction * r)`` with ``r`` the patch radius (the
-    largest distance of a contact from the centroid, in the tangent plane): the torsional moment a uniformly
-    pressed disc of radius ``r`` resists per unit normal force. This keeps the wrench set full-rank for a
-    two-pad grasp (two point contacts alone can never resist torque about the line joining them) and costs one
-    20-point hull per grasp.
-``"points"``
-    Every contact point is its own contact with ``torsional_friction``. Slower (a hull of ``k * m`` points).
-
-Centre of mass and torque scale: :class:`ObjectGeometry` (``torque_scale`` = the largest distance of a mesh vertex
-from the centre of mass, so epsilon is unit-free, ARCHITECTURE.md, Conventions). The GraspNet-style label is the
-smallest coefficient of a list at which the grasp is in force closure (:func:`min_closure_friction`).
+Turns a grasp's contacts into the metric's contact model (wrench maths: :mod:`graspgen.quality.wrench`,
+:mod:`graspgen.quality.closure`). ``contact_model`` ``"pad"`` (default): each pad's patch is one soft-finger contact
+at its centroid with the mean inward normal and torsional friction ``max(torsional_friction, 2/3 friction r)``
+(``r`` the patch radius: a uniformly pressed disc), so two pads give a full-rank wrench set; ``"points"``: every
+contact point is its own contact (slower). :class:`ObjectGeometry` gives the centre of mass and the torque scale
+(largest vertex distance from it, so epsilon is unit-free). :func:`min_closure_friction` is the GraspNet-style label.
 """
 
 from __future__ import annotations
@@ -54,21 +39,9 @@ CONTACT_MODELS = ("pad", "points")
 def pad_contacts(
     points: np.ndarray, normals: np.ndarray, finger: np.ndarray, *, friction: float, torsional_friction: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One soft-finger contact per pad from its contact patch.
-
-    Parameters
-    ----------
-    points : (k, 3) float, m
-    normals : (k, 3) float, unit, pointing into the object
-    finger : (k,) int, pad label of each contact
-    friction : float, Coulomb coefficient
-    torsional_friction : float, m, the floor of each pad's torsional coefficient
-
-    Returns
-    -------
-    centroids : (p, 3) float, normals : (p, 3) float (unit), gammas : (p,) float, m; ``p`` = pads that touch, in
-    ascending pad label order.
-    """
+    """One soft-finger contact per touching pad, in ascending pad order, from contact ``points`` (k, 3) m, inward unit
+    ``normals`` (k, 3) and pad labels ``finger`` (k,): centroids (p, 3), unit normals (p, 3), torsional coefficients
+    (p,) m, floored at ``torsional_friction``."""
     centroids, mean_normals, gammas = [], [], []
     # sorted(set(...)) rather than np.unique: same order, a few microseconds less on these tiny arrays (this runs
     # once per epsilon evaluation, ARCHITECTURE.md, Performance bars, asks for >= 2,000 per second).
@@ -94,12 +67,8 @@ def pad_contacts(
 def _pad_wrenches(
     centroids: np.ndarray, normals: np.ndarray, gammas: np.ndarray, com: np.ndarray, mu: float, scale: float, m: int
 ) -> np.ndarray:
-    """The grasp matrix of the pad model, (6, p*m + 2 * (pads with gamma > 0)).
-
-    The same columns in the same order as ``np.hstack([grasp_matrix(c_i, n_i, ..., torsional_friction=g_i)])``
-    over the pads (each pad's ``m`` cone edges, then its two torsional columns), built in one vectorised call:
-    the per-pad calls and their argument checks cost more than the wrenches themselves.
-    """
+    """The pad model's grasp matrix (6, p m + 2 (pads with gamma > 0)): the columns of per-pad
+    :func:`~graspgen.quality.wrench.grasp_matrix` calls, stacked, built in one vectorised call."""
     edges = _wrenches(centroids, normals, com, mu, scale, m, 0.0)  # (6, p*m), pad-major
     p = len(centroids)
     blocks = []
@@ -125,21 +94,10 @@ def grasp_epsilon(
     num_cone_edges: int = 8,
     contact_model: str = "pad",
 ) -> float:
-    """Ferrari-Canny epsilon of a grasp's contacts under ``contact_model`` (see the module docstring).
-
-    Parameters
-    ----------
-    points : (k, 3) float, m, contact points
-    normals : (k, 3) float, unit, pointing into the object
-    finger : (k,) int, which pad made each contact
-    center_of_mass : (3,) float, m, same frame as ``points``
-    friction, torque_scale, torsional_friction, num_cone_edges
-        As in :func:`graspgen.quality.closure.ferrari_canny`.
-
-    Returns
-    -------
-    float, unit-free: 0 when the contacts are not in force closure (fewer than two pads touching included).
-    """
+    """Ferrari-Canny epsilon (unit-free) of contacts ``points`` (k, 3) m with inward unit ``normals`` (k, 3) and pads
+    ``finger`` (k,) under ``contact_model``; ``center_of_mass`` (3,) m in the same frame; the other parameters as in
+    :func:`graspgen.quality.closure.ferrari_canny`. 0 when not in force closure (fewer than two pads touching
+    included)."""
     check_choice("contact_model", contact_model, CONTACT_MODELS)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
@@ -183,10 +141,7 @@ def min_closure_friction(
     num_cone_edges: int = 8,
     contact_model: str = "pad",
 ) -> float:
-    """GraspNet-style label: the smallest friction in ``frictions`` at which the grasp has epsilon > 0.
-
-    Returns NaN when it is not in force closure at any of them.
-    """
+    """GraspNet-style label: the smallest of ``frictions`` at which epsilon > 0; NaN if none."""
     for mu in sorted(frictions):
         eps = grasp_epsilon(
             points,
@@ -225,9 +180,8 @@ class EpsilonParams:
     """Coulomb coefficient of the friction cones; null uses the target object's friction in the scene (the
     coefficient the simulation used for gripper-object contacts, :mod:`graspgen.sim.grippers`)."""
     torsional_friction: float = 0.005
-    """Soft-finger torsional coefficient, m (torsional moment per unit normal force): the floor of each pad's
-    coefficient (``pad`` model) or every contact's (``points``). 0.005 m is the pads' torsional friction in the
-    simulation."""
+    """Soft-finger torsional coefficient, m (moment per unit normal force): the floor of each pad's (``pad``) or every
+    contact's (``points``); 0.005 m is the pads' torsional friction in the simulation."""
     num_cone_edges: int = 8
     """Edges of the polygonal friction cones."""
     contact_model: Literal["pad", "points"] = "pad"

@@ -1,21 +1,15 @@
-"""The perturbation model of the robustness labels: what a perturbed copy of a grasp changes, and how.
+"""The perturbation model of the robustness labels: what a perturbed copy of a grasp changes, and how; pure numpy.
 
-* the TCP pose ``T`` (world) becomes ``T @ [R(w) | t]`` (:func:`perturbed_poses`): a translation
-  ``t ~ N(0, translation_sigma^2 I)`` (m) and a rotation by the rotation vector ``w ~ N(0, rotation_sigma^2 I)``
-  (rad), both in the TCP frame (x closing, z approach), the rotation about the TCP origin. The width (and so the
-  opening) stays the nominal one: the controller does not know the error;
-* with ``object_noise``, the target object is also moved at placement by a planar error
-  (:func:`planar_object_noise`): ``N(0, object_translation_sigma^2)`` along world x and y and a yaw
-  ``N(0, object_rotation_sigma^2)`` about the vertical line through its centre of mass. Planar, so the object still
-  rests on its support in the same stable pose;
-* the target's physics: its mass (and inertia) scaled by ``exp(mass_sigma z)`` (log-normal, median 1), its centre
-  of mass moved by ``N(0, com_sigma^2 I)`` (m, mesh frame) and then held over the object's support
-  (:func:`graspgen.quality.resting.resting_com_offset`), and its sliding friction coefficient drawn from
-  ``N(mu, friction_sigma^2)`` truncated to ``> 0`` (:func:`truncated_friction`, one draw, by inverse CDF).
+- TCP pose ``T`` (world) -> ``T @ [R(w) | t]`` (:func:`perturbed_poses`), ``t ~ N(0, translation_sigma^2 I)`` m and
+  ``w ~ N(0, rotation_sigma^2 I)`` rad in the TCP frame; the width stays nominal.
+- With ``object_noise``, a planar object error at placement (:func:`planar_object_noise`): world x, y and yaw about
+  the centre of mass, so it rests in the same stable pose.
+- The target's mass scaled by ``exp(mass_sigma z)``, its centre of mass moved by ``N(0, com_sigma^2 I)`` m and held
+  over its support (:func:`graspgen.quality.resting.resting_com_offset`), its friction from ``N(mu,
+  friction_sigma^2)`` truncated to ``> 0`` (:func:`truncated_friction`).
 
-Randomness: every copy takes :data:`DRAWS_PER_COPY` standard normals in a fixed order, each drawn whether used or
-not, so a copy's perturbation depends only on its row of draws. Pure numpy; the rollouts of the copies are in
-:mod:`graspgen.workflows.robustness`.
+Every copy takes :data:`DRAWS_PER_COPY` standard normals in a fixed order, each drawn whether used or not. The
+rollouts of the copies are in :mod:`graspgen.workflows.robustness`.
 """
 
 from __future__ import annotations
@@ -45,48 +39,34 @@ x, y, yaw (3), mass scale (1), centre-of-mass offset (3), friction (1). All are 
 
 @dataclasses.dataclass(frozen=True)
 class RobustnessParams:
-    """Settings of the ``robustness`` stage (config section ``robustness``).
-
-    The rollout protocol is the rollouts stage's (``rollouts.lift``) and the epsilon of the copies follows
-    ``metrics.epsilon``: both enter this stage's key."""
+    """Settings of the ``robustness`` stage (config section ``robustness``); the protocol is ``rollouts.lift`` and the
+    copies' epsilon follows ``metrics.epsilon``, both in this stage's key."""
 
     num_perturbations: int = 20
     """Perturbed copies rolled out per successful grasp."""
     translation_sigma: float = 0.005
-    """Standard deviation (m) of the TCP translation error along each TCP axis. Compare it with the jaws' clearance,
-    ``rollouts.lift.width_margin / 2`` per side (10 mm by default; less for widths near the stroke): a copy offset
-    by more than that along the closing axis lands a finger on the target at placement (code 1) or pushes it during
-    the approach (code 1 beyond ``rollouts.lift.max_target_shift``)."""
+    """Standard deviation (m) of the TCP translation error along each TCP axis; compare with the jaws' clearance,
+    ``rollouts.lift.width_margin / 2`` per side: larger errors put a finger on the target (code 1)."""
     rotation_sigma: float = math.radians(5.0)
     """Standard deviation (rad) of each component of the TCP rotation error (a rotation vector in the TCP frame)."""
     object_noise: bool = False
-    """Also move the target object at placement (planar: world x, y and yaw about its centre of mass). Off by
-    default: what a grasp feels is the hand's pose relative to the object, and the TCP error already perturbs it in
-    all six dimensions (a planar object error is, to the hand, a TCP error in x, y and yaw); turning this on adds
-    that error a second time and mostly moves the object into its neighbours (codes 1-2, left out of
-    ``grip_robustness`` anyway). Turn it on to model a perception error of the object's position among clutter."""
+    """Also move the target at placement (planar: world x, y, yaw). Off by default: to the hand it repeats the TCP error
+    and mostly pushes the object into neighbours; turn it on to model a perception error among clutter."""
     object_translation_sigma: float = 0.005
     """Standard deviation (m) of the object's x and y error (with ``object_noise``)."""
     object_rotation_sigma: float = math.radians(5.0)
     """Standard deviation (rad) of the object's yaw error (with ``object_noise``)."""
     mass_sigma: float = 0.2
-    """Standard deviation of the log of the target's mass scale (dimensionless): the copy's mass and inertia are the
-    nominal ones times ``exp(mass_sigma z)``, so 0.2 is about +-20% at one sigma, median 1. Physical argument: the
-    record's mass is the mesh volume times an assumed density (or a catalogue mass), and the density of household
-    objects of one kind spreads by tens of percent (a full or half-empty bottle, wood versus plastic). Dex-Net 2.0
-    perturbs no mass (its metric is quasi-static); 0 turns it off."""
+    """Standard deviation of the log of the target's mass scale (dimensionless; 0.2 is about +-20% at one sigma, median
+    1): the record's mass assumes a density, which spreads by tens of percent within a kind of object. 0 turns it
+    off."""
     com_sigma: float = 0.005
-    """Standard deviation (m, >= 0) of the target's centre-of-mass offset along each mesh axis; 0 turns it off.
-    Contents (liquid, a battery) move a hand-sized object's centre by millimetres to a centimetre (Dex-Net's
-    ``sigma_obj_com``). The copy's object stays in its observed resting pose, so the offset's horizontal part is
-    pulled back inside the support polygon (:func:`graspgen.quality.resting.resting_com_offset`). Why: a free
-    offset sets the object moving on its own and mislabels the copy
-    (docs/decisions/2026-11-29-perturbation-com-projection.md)."""
+    """Standard deviation (m, >= 0) of the target's centre-of-mass offset along each mesh axis (Dex-Net's
+    ``sigma_obj_com``); 0 turns it off. The horizontal part is held inside the support polygon so the object stays at
+    rest (docs/decisions/2026-11-29-perturbation-com-projection.md)."""
     friction_sigma: float = 0.1
-    """Standard deviation of the target's sliding friction coefficient (dimensionless, absolute), truncated to
-    ``> 0``: the copy's coefficient is drawn from ``N(mu, friction_sigma^2)`` restricted to ``(0, inf)``. 0.1 is
-    Dex-Net's friction uncertainty (coefficient ~ N(0.5, 0.1^2) in Dex-Net 1.0 / 2.0's robust metrics, Mahler et al.
-    2016, 2017), and about the spread of measured coefficients of one material pair."""
+    """Standard deviation of the target's sliding friction coefficient (dimensionless, absolute), truncated to ``> 0``;
+    0.1 is Dex-Net's friction uncertainty."""
     epsilon_delta: float = 0.0
     """``pfc`` counts copies with epsilon > this (0: the probability of force closure itself)."""
     radius: bool = False
@@ -129,21 +109,8 @@ def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
 
 
 def perturbed_poses(T: np.ndarray, translation: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """``T @ [R(rotation_i) | translation_i]`` for each row: poses perturbed in their own (TCP) frame.
-
-    Parameters
-    ----------
-    T : (4, 4) float
-        The nominal pose (e.g. TCP to world).
-    translation : (n, 3) float, m
-        Offsets of the origin, along T's own axes.
-    rotation : (n, 3) float, rad
-        Rotation vectors in T's own frame (the rotation is about T's origin, applied before the offset moves it).
-
-    Returns
-    -------
-    (n, 4, 4) float
-    """
+    """``T @ [R(rotation_i) | translation_i]`` (n, 4, 4): the pose ``T`` (4, 4) perturbed in its own frame by
+    ``translation`` (n, 3) m and rotation vectors ``rotation`` (n, 3) rad about its origin."""
     T = check_transform("T", T)
     t = np.asarray(translation, dtype=np.float64).reshape(-1, 3)
     w = np.asarray(rotation, dtype=np.float64).reshape(-1, 3)
@@ -174,9 +141,8 @@ _NORMAL = NormalDist()
 
 
 def truncated_friction(mu: float, sigma: float, z: float) -> float:
-    """A friction coefficient from ``N(mu, sigma^2)`` truncated to ``> 0``, by inverse CDF of one standard normal
-    ``z`` (so one draw per copy, whatever the truncation): ``mu + sigma Phi^-1(a + Phi(z) (1 - a))`` with
-    ``a = Phi(-mu / sigma)``. ``sigma = 0`` gives ``mu``."""
+    """A friction coefficient from ``N(mu, sigma^2)`` truncated to ``> 0``, by inverse CDF of one standard normal ``z``
+    (one draw per copy whatever the truncation); ``sigma = 0`` gives ``mu``."""
     if sigma == 0.0:
         return float(mu)
     a = _NORMAL.cdf(-mu / sigma)

@@ -1,26 +1,12 @@
-"""Grasp-wrench maths for the Ferrari-Canny epsilon quality metric: friction cones and the grasp matrix.
+"""Grasp-wrench maths for the Ferrari-Canny epsilon: friction cones and the grasp matrix; pure numpy. The decisions on a
+wrench set are in :mod:`graspgen.quality.closure`.
 
-Pure numpy; usable without the pipeline. The decisions on a wrench set (epsilon from its hull, force closure by a
-linear program) are in :mod:`graspgen.quality.closure`.
-
-Model
------
-Contact ``i`` has a point ``p_i`` (metres) and a unit normal ``n_i`` pointing INTO the object (the direction the
-finger pushes). Its Coulomb friction cone is approximated by ``m`` edges
-
-    f_ij = n_i + mu * (t1_i cos(2 pi j / m) + t2_i sin(2 pi j / m)),   j = 0 .. m-1,
-
-with ``(t1_i, t2_i)`` a deterministic orthonormal tangent basis of ``n_i`` (:func:`tangent_basis`). Each edge gives
-the wrench column ``[f_ij; (p_i - c) x f_ij / torque_scale]`` (``c`` the centre of mass; ``torque_scale`` a length
-in metres that makes torques commensurate with forces; normal force is unit, so wrenches are dimensionless). With
-``torsional_friction = gamma > 0`` (soft finger; gamma in metres = torsional moment per unit normal force) each
-contact adds ``[0; +gamma n_i / torque_scale]`` and ``[0; -gamma n_i / torque_scale]``.
-
-Tolerances
-----------
-* Normals whose length differs from 1 by more than :data:`NORMAL_TOL` are rejected
-  (:class:`graspgen.errors.SettingsError`, a ``ValueError``); within it they are renormalised, so float32 round-off
-  upstream is harmless while un-normalised input is caught.
+Contact ``i`` has a point ``p_i`` (m) and a unit normal ``n_i`` pointing into the object (the finger's push). Its
+friction cone has ``m`` edges ``f_ij = n_i + mu (t1_i cos(2 pi j / m) + t2_i sin(2 pi j / m))`` over the tangent
+basis of :func:`tangent_basis`; each edge gives the dimensionless wrench ``[f_ij; (p_i - c) x f_ij / torque_scale]``
+(``c`` the centre of mass). A soft finger (``torsional_friction`` gamma > 0, m) adds ``[0; +-gamma n_i /
+torque_scale]`` per contact. Normals more than :data:`NORMAL_TOL` from unit length raise :class:`SettingsError`;
+within it they are renormalised.
 """
 
 from __future__ import annotations
@@ -142,52 +128,21 @@ def _wrenches(p: np.ndarray, n: np.ndarray, c: np.ndarray, mu: float, scale: flo
 
 
 def tangent_basis(normals) -> tuple[np.ndarray, np.ndarray]:
-    """Deterministic orthonormal tangent basis of each normal.
-
-    ``t1 = normalise(n x e_a)`` with ``e_a`` the coordinate axis least aligned with ``n`` (the first such axis on
-    ties), ``t2 = n x t1``; ``(t1, t2, n)`` is right-handed and ``|n x e_a| >= sqrt(2/3)``, so it is well
-    conditioned. It is equivariant under the 24 rotations that permute the coordinate axes up to sign (up to a
-    half-turn about ``n``, which maps a cone with an even number of edges onto itself), but not under arbitrary
-    rotations: no continuous choice from ``n`` alone can be.
-
-    Parameters
-    ----------
-    normals : (k, 3) float
-        Unit normals (dimensionless), renormalised within :data:`NORMAL_TOL`.
-
-    Returns
-    -------
-    t1, t2 : (k, 3) float
-        Unit tangents, orthogonal to each other and to the normal.
-    """
+    """Deterministic orthonormal tangents ``t1, t2`` (k, 3) of unit ``normals`` (k, 3): ``t1 = normalise(n x e_a)`` with
+    ``e_a`` the coordinate axis least aligned with ``n``, ``t2 = n x t1``, right-handed. Equivariant only under the 24
+    axis-permuting rotations; no continuous choice from ``n`` alone can be under all."""
     return _tangent_basis(_check_normals(normals))
 
 
 def friction_cone_edges(normals, friction, num_cone_edges=8) -> np.ndarray:
-    """Edges of the polyhedral friction cone at each contact (vertices on the true cone).
-
-    ``f_ij = n_i + mu * (t1_i cos(2 pi j / m) + t2_i sin(2 pi j / m))`` with the tangent basis of
-    :func:`tangent_basis`. Every edge has unit normal component and ``|f_ij| = sqrt(1 + mu^2)``.
-
-    Parameters
-    ----------
-    normals : (k, 3) float
-        Unit contact normals pointing INTO the object (the direction the finger pushes), dimensionless.
-    friction : float
-        Coulomb friction coefficient ``mu > 0``, dimensionless.
-    num_cone_edges : int, default 8
-        Number of cone edges ``m >= 3``.
-
-    Returns
-    -------
-    (k, m, 3) float
-        Cone edge forces per unit normal force, dimensionless.
+    """Edges of the polyhedral friction cone at each contact (vertices on the true cone): (k, m, 3) float forces per
+    unit normal force, each with ``|f_ij| = sqrt(1 + mu^2)``, for unit ``normals`` (k, 3) pointing into the object,
+    ``friction`` mu > 0 and ``num_cone_edges`` m >= 3.
 
     Raises
     ------
     SettingsError
-        On a bad shape, a non-finite value, non-unit normals, ``friction <= 0`` or ``num_cone_edges < 3``; the
-        message starts with the argument's name.
+        A bad shape, a non-finite value, non-unit normals, ``friction <= 0`` or ``num_cone_edges < 3``.
     """
     n = _check_normals(normals)
     mu = check_number("friction", friction, low=0.0, low_open=True)
@@ -216,33 +171,27 @@ def grasp_matrix(
     num_cone_edges=8,
     torsional_friction=0.0,
 ) -> np.ndarray:
-    """Primitive contact wrenches as the columns of a (6, n) matrix.
+    """Primitive contact wrenches as the columns of a (6, k m) matrix, or (6, k m + 2k) with ``torsional_friction``.
 
-    Columns ``[f_ij; (p_i - c) x f_ij / torque_scale]``, contact-major (contact 0's ``m`` edges first, in the
-    order of :func:`friction_cone_edges`). When ``torsional_friction > 0`` the ``2k`` soft-finger columns follow,
-    contact-major: ``[0; +gamma n_i / torque_scale]`` then ``[0; -gamma n_i / torque_scale]``.
+    Columns ``[f_ij; (p_i - c) x f_ij / torque_scale]``, contact-major in the order of :func:`friction_cone_edges`, then
+    the soft-finger columns ``[0; +gamma n_i / torque_scale]``, ``[0; -gamma n_i / torque_scale]`` per contact.
 
     Parameters
     ----------
-    points : (k, 3) float, metres
-        Contact points (k may be 0).
+    points : (k, 3) float
+        Contact points, m (k may be 0).
     normals : (k, 3) float
-        Unit contact normals pointing INTO the object, dimensionless.
-    center_of_mass : (3,) float, metres
-        Torque reference point.
+        Unit contact normals pointing into the object.
+    center_of_mass : (3,) float
+        Torque reference point, m.
     friction : float
-        Coulomb friction coefficient ``mu > 0``.
-    torque_scale : float, metres
-        Length dividing torques (e.g. the object's largest distance from the centre of mass), ``> 0``.
-    num_cone_edges : int, default 8
-        Friction-cone edges per contact, ``>= 3``.
-    torsional_friction : float, metres, default 0.0
-        Soft-finger torsional friction ``gamma >= 0`` (torsional moment per unit normal force); 0 = point contact.
-
-    Returns
-    -------
-    (6, k*m) or (6, k*m + 2k) float
-        Dimensionless wrenches: rows 0-2 force, rows 3-5 torque / torque_scale.
+        Coulomb coefficient ``mu > 0``.
+    torque_scale : float
+        Length dividing torques (e.g. the object's largest radius from the centre of mass), m, ``> 0``.
+    num_cone_edges : int
+        Cone edges per contact, ``>= 3``.
+    torsional_friction : float
+        Soft-finger torsional friction ``gamma >= 0`` (m: moment per unit normal force); 0 = point contact.
 
     Raises
     ------

@@ -1,23 +1,10 @@
-"""Grasps in 3-D: a GLB (binary glTF 2.0) scene of objects and one gripper marker per grasp, behind
-``gen show grasps --3d``.
+"""Grasps in 3-D: a GLB (binary glTF 2.0) scene of objects and one gripper marker per grasp (``gen show grasps --3d``).
 
-The marker is ACRONYM's "fork" drawn with thin boxes, in the grasp's TCP frame (ARCHITECTURE.md, Conventions: z
-approach, x closing, origin between the pads), sized by the gripper (:func:`graspgen.grippers.load_gripper`):
-
-* two fingers of the gripper's finger length (``finger_size[2]``) at the full opening, their inner faces at
-  ``x = -+max_width / 2``, their tips flush with the pads' tips (``z = pad_size[2] / 2``), as ACRONYM draws an open
-  hand;
-* a palm bar joining the fingers' backs;
-* a stem from the palm bar back to the hand base at ``z = -tcp_offset`` (at least half a finger long), so the
-  marker shows which way the gripper came from and how far back its body reaches.
-
-Bars are ``max_width / 40`` thick (2 mm for the Panda). Every marker of one label shares one mesh (a glTF mesh used
-by many nodes), so a file with thousands of grasps stays small; marker nodes are named ``grasp_<id>`` and carry the
-grasp pose as their transform, object nodes are named after the object and carry its pose (identity for an object
-set). Colours are vertex colours (RGBA): success green, failure red (:func:`grasps_glb`), or the colours of
-:data:`graspgen.viz.grasp_view.LABELS` for a scene's rollout outcomes (:func:`scene_glb`).
-
-The bytes are a pure function of the arguments (no timestamps, fixed names and order), for a given trimesh version.
+The marker is ACRONYM's open-hand "fork" of thin boxes in the grasp's TCP frame, sized by the gripper: two fingers
+with inner faces at ``x = -+max_width / 2`` and tips flush with the pads, a palm bar, a stem back to the hand base
+(``z = -tcp_offset``). Markers of one label share one mesh (small files); nodes are named ``grasp_<id>`` and carry
+the grasp pose, object nodes the object's name and pose. The bytes are a pure function of the arguments for a given
+trimesh version.
 """
 
 from __future__ import annotations
@@ -73,20 +60,8 @@ def _spec(gripper: GripperSpec | str | None) -> GripperSpec:
 
 
 def marker_mesh(gripper: GripperSpec | str | None = None, colour: Sequence[int] = SUCCESS_COLOUR) -> trimesh.Trimesh:
-    """The fork marker of one grasp in its TCP frame (see the module docstring), coloured ``colour``.
-
-    Parameters
-    ----------
-    gripper : GripperSpec or str or None
-        The gripper (a spec, a name or a gripper file); None: the default gripper.
-    colour : (4,) int
-        RGBA, 0-255.
-
-    Returns
-    -------
-    trimesh.Trimesh
-        Four boxes (left finger, right finger, palm bar, stem): 32 vertices, 48 faces, m.
-    """
+    """The fork marker of one grasp in its TCP frame, RGBA ``colour`` (4,) 0-255: four boxes (left finger, right finger,
+    palm bar, stem), 32 vertices, 48 faces, m; ``gripper`` a spec, name or file (None: the default gripper)."""
     spec = _spec(gripper)
     w, t = float(spec.max_width), float(spec.max_width) / 40.0
     tip = spec.pad_size[2] / 2.0
@@ -133,29 +108,20 @@ def labelled_grasps_glb(
     grasp_ids: Any = None,
     extra: Sequence[tuple[str, trimesh.Trimesh, Any]] = (),
 ) -> bytes:
-    """A GLB of objects at their poses and one marker per grasp, coloured by label.
+    """The GLB bytes of objects at their poses and one marker per grasp, coloured by label.
 
     Parameters
     ----------
     objects : sequence of (name, vertices (v, 3), faces (f, 3), pose (4, 4))
-        Meshes (m, mesh frame) and their poses in the file's frame; node and mesh named ``name`` (unique).
+        Meshes (m, mesh frame) and their poses in the file's frame; names unique.
     T_tcp : (n, 4, 4) float
         Grasp TCP poses in the file's frame.
     labels : (n,) int
-        Label code per grasp, a key of ``colours``.
-    colours : mapping
-        ``{code: (name, RGBA)}``; the marker mesh of a code is named ``marker_<name>``.
-    gripper : GripperSpec or str or None
-        Marker size (:func:`marker_mesh`); None: the default gripper.
+        Label code per grasp, a key of ``colours`` (``{code: (name, RGBA)}``).
     grasp_ids : (n,) int, optional
         Node names ``grasp_<id>`` (default 0..n-1; unique).
     extra : sequence of (name, mesh, pose (4, 4))
         Further coloured meshes (e.g. a table top).
-
-    Returns
-    -------
-    bytes
-        The GLB file.
 
     Raises
     ------
@@ -210,30 +176,9 @@ def grasps_glb(
     grasp_ids: Any = None,
     name: str = "object",
 ) -> bytes:
-    """A GLB of one object (at the origin of its mesh frame) and a marker per grasp: green success, red failure.
-
-    Parameters
-    ----------
-    vertices : (v, 3) float
-        Object mesh vertices, m, mesh frame.
-    faces : (f, 3) int
-        Its faces.
-    T_tcp : (n, 4, 4) float
-        TCP poses in the mesh frame.
-    success : (n,) bool
-        Labels: :data:`SUCCESS_COLOUR` / :data:`FAILURE_COLOUR`.
-    gripper : GripperSpec or str or None
-        Marker size; None: the default gripper.
-    grasp_ids : (n,) int, optional
-        Marker node names ``grasp_<id>`` (default 0..n-1).
-    name : str
-        The object's node and mesh name.
-
-    Returns
-    -------
-    bytes
-        The GLB file (:func:`labelled_grasps_glb`).
-    """
+    """The GLB bytes of one object (mesh ``vertices`` (v, 3) m, ``faces`` (f, 3), at its mesh frame's origin) and a
+    marker per TCP pose ``T_tcp`` (n, 4, 4): :data:`SUCCESS_COLOUR` where ``success`` (n,), else
+    :data:`FAILURE_COLOUR`."""
     flags = np.asarray(success).reshape(-1)
     if flags.dtype != np.bool_ and not (flags.dtype.kind in "iu" and np.isin(flags, (0, 1)).all()):
         raise SettingsError(f"success: must be booleans (or 0/1), got {flags.dtype}")
@@ -243,25 +188,9 @@ def grasps_glb(
 
 def object_set_glb(record: ObjectRecord, grasps: pa.Table, *, n: int | None = None,
                    gripper: GripperSpec | str | None = None) -> bytes:
-    """The GLB of an object's grasp set (a table of :mod:`graspgen.workflows.object_grasps`: ``grasp_id``, ``gripper``,
-    ``pose_object``, ``success``), at most ``n`` grasps spread evenly over successes and failures
-    (:func:`graspgen.viz.grasp_view.choose_grasps`; None: all).
-
-    Parameters
-    ----------
-    record : ObjectRecord
-        The object (its mesh frame is the frame of ``pose_object``).
-    grasps : pyarrow.Table
-        Its grasp set.
-    n : int or None
-        At most this many markers.
-    gripper : GripperSpec or str or None
-        Marker size; default the table's gripper (the default gripper for an empty table).
-
-    Returns
-    -------
-    bytes
-    """
+    """The GLB bytes of an object's grasp set (``grasp_id``, ``gripper``, ``pose_object``, ``success``), at most ``n``
+    grasps spread over successes and failures (:func:`graspgen.viz.grasp_view.choose_grasps`; None: all); ``gripper``
+    defaults to the table's."""
     success = grasps.column("success").to_numpy(zero_copy_only=False).astype(bool)
     rows = np.arange(len(grasps)) if n is None else choose_grasps(success.astype(np.int64), n, [1, 0])
     if gripper is None and len(grasps):
@@ -275,28 +204,9 @@ def object_set_glb(record: ObjectRecord, grasps: pa.Table, *, n: int | None = No
 def scene_glb(scene: SceneRecord, objects: Callable[[str], ObjectRecord], grasps: pa.Table,
               rollouts: pa.Table | None = None, *, n: int | None = None,
               gripper: GripperSpec | str | None = None) -> bytes:
-    """The GLB of a scene in its world frame: the table top (its top at z = 0), the objects at their settled poses
-    and markers at the grasps' world poses, coloured by rollout outcome (by the pre-filter without ``rollouts``),
-    in the colours of :data:`graspgen.viz.grasp_view.LABELS`.
-
-    Parameters
-    ----------
-    scene : SceneRecord
-        The scene shard.
-    objects : callable
-        Object name -> its :class:`ObjectRecord` (its mesh).
-    grasps : pyarrow.Table
-        The scene's grasps table (``grasp_id``, ``gripper``, ``pose_world``, ``prefilter_code``).
-    rollouts : pyarrow.Table or None
-        Its rollouts table, row for row.
-    n : int or None
-        At most this many markers, spread over the labels (:func:`graspgen.viz.grasp_view.choose_grasps`).
-    gripper : GripperSpec or str or None
-        Marker size; default the table's gripper.
-
-    Returns
-    -------
-    bytes
+    """The GLB bytes of a scene in its world frame: the table top (top at z = 0), the objects at their settled poses,
+    and at most ``n`` markers at the grasps' world poses coloured by rollout outcome (by pre-filter code without
+    ``rollouts``), in the colours of :data:`graspgen.viz.grasp_view.LABELS`; ``objects`` maps a name to its record.
 
     Raises
     ------

@@ -1,20 +1,9 @@
 """Grasps drawn on a scene's camera image: the picture behind ``gen show grasps``.
 
-Each grasp is drawn as the classic parallel-jaw "fork" marker, in 3-D and then projected: in the grasp's TCP frame
-(ARCHITECTURE.md, Conventions: z approach, x closing, origin at the pads' centre) the two fingers are segments at
-``x = -+open_width / 2`` from the pad tips (``z = +pad_length / 2``) back to ``z = -pad_length / 2``, a palm bar
-joins their backs, and a stem of one pad length points back along -z (which way the gripper came from).
-:func:`grasp_marker_segments` gives these segments in the world frame; :func:`segment_pixels` projects them with a scene
-view's :class:`~graspgen.sim.camera.Camera` (OpenCV convention, the same as
-:func:`graspgen.sim.camera.project`); :func:`draw_grasps` draws them with Pillow on the view's RGB image, upscaled
-so that markers stay legible on a
-320 x 240 render.
-
-Labels (:data:`LABELS`): with a rollouts table, a grasp is coloured by its outcome code (5 success green,
-4 slipped orange, 3 no contact yellow, 0/1/2 collisions in shades of red); without one, by the pre-filter's code
-(-1 free blue, 0/1/2 rejected in the same reds). :func:`choose_grasps` picks at most ``n`` grasps
-deterministically, as evenly over the labels as they allow. :func:`grasp_picture` puts it all together with a
-legend. Everything here is a pure function of its arguments.
+Each grasp is a parallel-jaw "fork" in its TCP frame (fingers at ``x = -+open_width / 2`` over the pad length,
+a palm bar, a stem back along -z), projected with the view's :class:`~graspgen.sim.camera.Camera` and drawn with
+Pillow on the upscaled RGB image, coloured by outcome code (with a rollouts table) or by pre-filter code
+(:data:`LABELS`). Pure functions of their arguments.
 """
 
 from __future__ import annotations
@@ -70,9 +59,8 @@ LABELS: dict[str, dict[int, tuple[str, tuple[int, int, int]]]] = {
         2: ("collision_with_clutter", _PINK_RED),
     },
 }
-"""Label source -> code -> (name, RGB colour). Rollout codes are the outcome codes (ARCHITECTURE.md, Conventions),
-pre-filter codes those of :mod:`graspgen.sim.prefilter`. The order of each dict is the priority: first in the legend,
-first served by :func:`choose_grasps`, drawn last (on top)."""
+"""Label source -> code -> (name, RGB colour); each dict's order is the priority: first in the legend, first served by
+:func:`choose_grasps`, drawn on top."""
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -81,23 +69,9 @@ first served by :func:`choose_grasps`, drawn last (on top)."""
 
 
 def grasp_marker_segments(T_world: np.ndarray, open_width: np.ndarray, gripper: GripperSpec) -> np.ndarray:
-    """World-frame segments of each grasp's fork marker (see the module docstring).
-
-    Parameters
-    ----------
-    T_world : (n, 4, 4) float
-        TCP poses in the world frame.
-    open_width : (n,) float
-        Jaw opening (m) to draw the fingers at (the grasps table's ``open_width``).
-    gripper : GripperSpec
-        Gives the pad length ``pad_size[2]`` (m): finger and stem length.
-
-    Returns
-    -------
-    (n, MARKER_SEGMENTS, 2, 3) float64
-        Segment end points (m, world): left finger (tip, back), right finger (tip, back), palm bar (left, right),
-        stem (palm centre, end).
-    """
+    """World-frame segments (m) of each grasp's fork marker: (n, MARKER_SEGMENTS, 2, 3) float64, left finger (tip,
+    back), right finger, palm bar, stem, from TCP poses ``T_world`` (n, 4, 4), openings ``open_width`` (n,) m and the
+    gripper's pad length."""
     T = np.asarray(T_world, dtype=float)
     w = np.asarray(open_width, dtype=float)
     if T.ndim != 3 or T.shape[1:] != (4, 4):
@@ -121,23 +95,13 @@ def grasp_marker_segments(T_world: np.ndarray, open_width: np.ndarray, gripper: 
 
 
 def segment_pixels(camera: Camera, segments: np.ndarray, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Image coordinates of world-frame segments seen by ``camera``, clipped to the near plane.
-
-    Parameters
-    ----------
-    camera : Camera
-        OpenCV-convention camera (``K``, camera-to-world ``T_world_camera``).
-    segments : (..., 2, 3) float
-        Segment end points (m, world).
-    scale : float
-        Image upscaling factor: coordinates are for the image resized by ``scale`` (pixel centres at integers in
-        both, so ``u' = scale (u + 0.5) - 0.5``).
+    """Image coordinates of world-frame segments ``(..., 2, 3)`` seen by ``camera``, clipped to the near plane.
 
     Returns
     -------
     uv : (..., 2, 2) float64
-        (u = column, v = row) of both end points; an end point behind :data:`NEAR_CLIP` is replaced by the
-        segment's crossing of that plane. NaN where the whole segment is behind it.
+        (column, row) of both end points in the image upscaled by ``scale``; NaN where the whole segment is behind
+        :data:`NEAR_CLIP`.
     visible : (...) bool
         Whether any part of the segment lies in front of the camera.
     """
@@ -187,30 +151,9 @@ def draw_grasps(
     line_width: int | None = None,
     outline: bool = True,
 ) -> Image.Image:
-    """The image ``rgb`` upscaled by ``scale`` with each grasp's marker drawn on it, in order (later on top).
-
-    Parameters
-    ----------
-    rgb : (H, W, 3) uint8
-        The view's image; ``camera`` must be the camera that took it (``camera.width == W``, ``height == H``).
-    camera : Camera
-    segments : (n, s, 2, 3) float
-        World-frame marker segments (:func:`grasp_marker_segments`).
-    colours : (n, 3) int
-        RGB colour of each marker.
-    scale : int
-        Nearest-neighbour upscaling of the image (markers are drawn at the upscaled resolution, so they are thin
-        and sharp on a small render).
-    line_width : int or None
-        Line width in upscaled pixels; default ``max(1, scale - 1)``.
-    outline : bool
-        Draw each marker first in black, 2 pixels wider, so that it stands out on any background.
-
-    Returns
-    -------
-    PIL.Image.Image
-        RGB, ``(W scale, H scale)``.
-    """
+    """The image ``rgb`` (H, W, 3) uint8 upscaled by ``scale`` (nearest neighbour) with each marker ``segments``
+    (n, s, 2, 3) drawn in ``colours`` (n, 3), later on top: a PIL RGB image of ``(W scale, H scale)``. ``camera`` must
+    be the one that took ``rgb``; ``outline`` draws each marker first in black, 2 pixels wider."""
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
         raise SettingsError(f"rgb: must be an (H, W, 3) uint8 image, got {rgb.shape} {rgb.dtype}")
@@ -266,21 +209,8 @@ def rollouts_match(grasps: pa.Table, rollouts: pa.Table) -> bool:
 
 
 def grasp_labels(grasps: pa.Table, rollouts: pa.Table | None = None) -> tuple[np.ndarray, str]:
-    """Each grasp's label code and the label source (a key of :data:`LABELS`).
-
-    Parameters
-    ----------
-    grasps : pyarrow.Table
-        A grasps table (:data:`graspgen.workflows.scene_grasps.SCHEMA`).
-    rollouts : pyarrow.Table or None
-        Its rollouts table (:data:`graspgen.workflows.rollouts.SCHEMA`), row for row; None labels by the pre-filter.
-
-    Returns
-    -------
-    codes : (n,) int64
-        Outcome codes 0-5 (``"rollouts"``) or pre-filter codes -1..2 (``"prefilter"``).
-    source : str
-    """
+    """Each grasp's label code (n,) int64 and its source: outcome codes 0-5 from ``rollouts`` (``"rollouts"``), or
+    pre-filter codes -1..2 from ``grasps`` when ``rollouts`` is None (``"prefilter"``)."""
     if rollouts is None:
         return grasps.column("prefilter_code").to_numpy().astype(np.int64), "prefilter"
     if not rollouts_match(grasps, rollouts):
@@ -289,26 +219,8 @@ def grasp_labels(grasps: pa.Table, rollouts: pa.Table | None = None) -> tuple[np
 
 
 def choose_grasps(codes: np.ndarray, n: int, priority: Sequence[int]) -> np.ndarray:
-    """At most ``n`` row indices, as evenly over the labels as they allow; deterministic.
-
-    Slots are dealt to the labels present one at a time in ``priority`` order (a label with no grasps left is
-    skipped), so each label gets ``n / labels`` or all it has. Within a label the picks are evenly spaced over its
-    rows in row (grasp id) order, so they spread over the scene's objects (rows are grouped by object).
-
-    Parameters
-    ----------
-    codes : (m,) int
-        Label code per row.
-    n : int
-        How many to choose (>= 0).
-    priority : sequence of int
-        Label codes in the order they are served; codes not listed come after them, in increasing order.
-
-    Returns
-    -------
-    (k,) int64
-        ``k = min(n, m)`` row indices, increasing.
-    """
+    """At most ``n`` row indices (increasing, int64), dealt to the labels in ``priority`` order one slot at a time and
+    evenly spaced within a label's rows; deterministic. Codes not in ``priority`` come after, in increasing order."""
     codes = np.asarray(codes).astype(np.int64)
     if n < 0:
         raise SettingsError(f"n: must be >= 0, got {n}")
@@ -394,29 +306,8 @@ def grasp_picture(
     scale: int = 3,
     gripper: GripperSpec | None = None,
 ) -> Image.Image:
-    """The scene's RGB view ``view`` with up to ``n`` grasp markers, coloured by label, and a legend below.
-
-    Parameters
-    ----------
-    scene : SceneRecord
-        The scene shard read back (needs its RGB images).
-    grasps : pyarrow.Table
-        The scene's grasps table.
-    rollouts : pyarrow.Table or None
-        Its rollouts table: colours by outcome; None colours by the pre-filter result.
-    view : int
-        Camera view to draw on.
-    n : int
-        At most this many markers (:func:`choose_grasps`).
-    scale : int
-        Upscaling of the image (:func:`draw_grasps`).
-    gripper : GripperSpec or None
-        For the marker size; default the grasps table's gripper (the 2F-85 when the table is empty).
-
-    Returns
-    -------
-    PIL.Image.Image
-        ``(W scale, H scale + legend)`` RGB.
+    """The scene's RGB view ``view`` with up to ``n`` grasp markers coloured by label and a legend below: a PIL RGB
+    image of ``(W scale, H scale + legend)``. ``gripper`` sizes the markers (default the table's gripper).
 
     Raises
     ------

@@ -44,12 +44,10 @@ class ObjectGraspsParams:
     """Free-space protocol of the rollouts: ``acronym`` (placed open at the grasp, close, shake; ACRONYM's test) or
     ``graspdatagen`` (close, then five tugs at the object's weight; GraspDataGen's test). It sets ``lift.protocol``."""
     selection: str = "natural"
-    """Which rollouts are kept. ``natural`` (default): every antipodal candidate that does not collide at placement
-    (outcomes 3-5), whatever its outcome, until ``target_grasps`` are kept: the sampler's own contact-making,
-    collision-free distribution with its natural success rate, as ACRONYM keeps its poses (no near misses), plus
-    collisions as they come within ``collision_share`` of the negatives. ``balanced``: ``target_positives``
-    positives and ``target_negatives`` negatives, with near misses and at most ``collision_share`` collisions
-    among the negatives. Why natural: docs/decisions/2026-12-07-natural-object-sets.md."""
+    """Which rollouts are kept. ``natural`` (default): every candidate that does not collide at placement (outcomes 3-5)
+    until ``target_grasps``, plus collisions within ``collision_share`` of the negatives, as ACRONYM keeps its poses.
+    ``balanced``: ``target_positives`` and ``target_negatives`` with near misses. Why natural:
+    docs/decisions/2026-12-07-natural-object-sets.md."""
     target_grasps: int = 800
     """``natural``: rollouts that do not collide at placement to keep per object (the first ones in trial
     order)."""
@@ -62,32 +60,25 @@ class ObjectGraspsParams:
     max_candidates: int = 20000
     """Most rollouts per object; the loop stops here even when a target is not met (a warning says so)."""
     collision_share: float = 0.25
-    """Largest share of the kept negatives that may be collisions at placement (outcomes 0-2: the open hand
-    intersects the object where the grasp puts it), in [0, 1]; 1 keeps failures as they come. Why keep some: a
-    grasp model scores a planner's candidates, most of which collide (88 % of the antipodal candidates on the
-    learning meshes), and must learn to rank them last. Why a cap: they are the cheapest negatives and teach
-    nothing of what holds."""
+    """Largest share of the kept negatives that may be collisions at placement (outcomes 0-2), in [0, 1]; 1 keeps
+    failures as they come. Some are kept because a grasp model must rank a planner's colliding candidates last; capped
+    because they teach nothing of what holds."""
     batch_size: int = 128
     """Candidates sampled per batch (antipodal plus near misses, in a shuffled order)."""
     near_miss_fraction: float = 0.3
     """``balanced``: share of each batch that are near misses (``round(fraction * batch_size)``), in [0, 1)."""
     near_miss_fraction_when_positives_met: float = 0.8
-    """``balanced``: share of each batch that are near misses once ``target_positives`` successes are kept (and
-    some antipodal candidate has held), in [0, 1): from then on only failures are kept, and they are where the near
-    misses are."""
+    """``balanced``: share of each batch that are near misses once ``target_positives`` are kept, in [0, 1)."""
     near_miss_overhang: float | None = None
-    """Shifted near misses: how far (m) beyond the edge of the pad face the parent's contact point ends up, along
-    the shift (the shift is the distance from the contact to the pad's edge in a random in-plane direction plus
-    this); null: half the pad face's width, ``pad_size[1] / 2`` (Panda 8.7 mm)."""
+    """Shifted near misses: how far (m) beyond the pad face's edge the parent's contact point ends up; null: half the
+    pad face's width, ``pad_size[1] / 2``."""
     near_miss_tilt: float | None = None
-    """Tilted near misses: the tilt (rad, in (0, pi/2]) of the hand about the TCP, about a random axis
-    perpendicular to the approach; null: ``atan(max_width / (2 finger_length))`` of the gripper (Panda 0.640 rad),
-    the smallest tilt that swings an open finger's base past the grasp's centre line."""
+    """Tilted near misses: the hand's tilt about the TCP (rad, in (0, pi/2]) about a random axis perpendicular to the
+    approach; null: :func:`default_tilt`."""
     sampler: AntipodalParams = dataclasses.field(default_factory=lambda: free_space_sampler())
-    """Antipodal sampling on the object's mesh (surface points, friction cone, orientations, depths). Its
-    ``approach`` is always ``any`` here: approach axes over the whole sphere, in the object frame. Defaults as
-    ACRONYM samples: the friction cone of its published coefficient (1.0) and the TCP at the contacts' midpoint
-    (one depth: free space has no table for the finger tips to reach)."""
+    """Antipodal sampling on the object's mesh; its ``approach`` is always ``any`` here (the whole sphere, object
+    frame). Defaults as ACRONYM samples: friction cone of coefficient 1.0, one depth (no table for the finger tips to
+    reach)."""
     lift: LiftParams = dataclasses.field(default_factory=lambda: LiftParams(protocol="acronym"))
     """The rollout's protocol settings (``lift.acronym``, ``lift.graspdatagen``, physics); ``lift.protocol`` is set
     from ``protocol``."""
@@ -105,16 +96,13 @@ class ObjectGraspsParams:
     epsilon: EpsilonParams = dataclasses.field(default_factory=EpsilonParams)
     """Contact model and friction of the epsilon (``epsilon.friction`` null: the object's friction)."""
     label: str = "firm"
-    """Which label makes a positive (a kept success, a near miss's parent, a robustness copy's win, what the probe
-    trains on): ``firm`` (default; outcome 5 and the object's motion in the hand within ``lift.firm_translation`` /
-    ``firm_rotation``: a held-but-not-firm grasp is a negative) or ``held`` (outcome 5, the object still between
-    the fingers after the disturbance: ACRONYM's ``object_in_gripper``). Both labels are stored in every row
-    (``firm``, ``success``); the ACRONYM export's ``object_in_gripper`` is ``success`` either way."""
+    """Which label makes a positive: ``firm`` (default; outcome 5 and the object's motion in the hand within the
+    firm-hold tolerances) or ``held`` (outcome 5: ACRONYM's ``object_in_gripper``). Both are stored in every row
+    (``firm``, ``success``)."""
     backend: str = dataclasses.field(default="mujoco", metadata={KEY_OMIT_DEFAULT: True})
-    """Where the candidates are rolled out: ``mujoco`` (the CPU, one after another) or ``warp`` (MuJoCo Warp, each
-    batch of ``batch_size`` candidates at once; needs ``pip install -e '.[warp]'``). The results are taken in the
-    same trial order and stop at the same point, so the same labels keep the same rows (the candidates a batch
-    holds past that point are simulated and dropped); the robustness copies run on the CPU."""
+    """Where the candidates are rolled out: ``mujoco`` (CPU, one at a time) or ``warp`` (MuJoCo Warp, ``batch_size`` at
+    once; ``pip install -e '.[warp]'``). Both take results in the same trial order, so the same labels keep the same
+    rows; robustness copies run on the CPU."""
     warp: WarpParams = dataclasses.field(default_factory=WarpParams, metadata={KEY_OMIT_DEFAULT: True})
     """Device and buffer sizes of the ``warp`` backend (:class:`graspgen.sim.warp_backend.WarpParams`; its
     ``nworld`` is capped at ``batch_size``; unused by ``mujoco``)."""
@@ -208,9 +196,8 @@ def default_overhang(gripper: GripperSpec) -> float:
 
 
 def default_tilt(gripper: GripperSpec) -> float:
-    """``atan(max_width / (2 finger_length))`` (rad): the tilt about the TCP that swings the base of an open finger
-    (``finger_size[2]`` behind its tip) sideways by half the opening, past the grasp's centre line
-    (:mod:`graspgen.workflows.object_grasps`)."""
+    """``atan(max_width / (2 finger_length))`` (rad): the smallest tilt about the TCP that swings an open finger's base
+    past the grasp's centre line."""
     return math.atan(gripper.max_width / (2.0 * gripper.finger_size[2]))
 
 

@@ -1,54 +1,16 @@
 """Stage 5, ``robustness``: how often a successful grasp still succeeds when it is placed with error.
 
-One task per scene (inputs rollouts, grasps, scenes, objects). The scene and the gripper are compiled once per task
-(:func:`graspgen.workflows.rollouts.scene_simulator`, the rollouts stage's protocol ``rollouts.lift``). For every grasp
-whose rollout succeeded (outcome 5), ``num_perturbations`` perturbed copies are rolled out in that same model:
-
-* the TCP pose ``T`` (world) becomes ``T @ [R(w) | t]``: a translation ``t ~ N(0, translation_sigma^2 I)`` (m) and a
-  rotation by the rotation vector ``w ~ N(0, rotation_sigma^2 I)`` (rad), both in the TCP frame (x closing,
-  z approach), the rotation about the TCP origin. The width (and so the opening) stays the nominal one: the
-  controller does not know the error;
-* with ``object_noise``, the target object is also moved at placement by a planar error: ``N(0,
-  object_translation_sigma^2)`` along world x and y and a yaw ``N(0, object_rotation_sigma^2)`` about the vertical
-  line through its centre of mass. Planar, so the object still rests on its support in the same stable pose. A moved
-  object can start touching a neighbour; the physics resolves that and the rules may then label the copy 1 or 2.
-* the target's physics: its mass (and inertia) scaled by ``exp(mass_sigma z)`` (log-normal, median 1: uniform density
-  scaling, so the centre of mass and the inertia's shape stay), its centre of mass moved by ``N(0, com_sigma^2 I)``
-  (m, mesh frame; the inertia is kept about the new centre) and then held over the object's support
-  (:func:`graspgen.quality.resting.resting_com_offset`: the object is where it was seen, at rest, so its centre of
-  mass is above what it rests on; a horizontal shift that would tip or roll it is pulled back inside the support
-  polygon), and its sliding friction coefficient (which governs the gripper-target contacts) drawn from ``N(mu,
-  friction_sigma^2)`` truncated to ``> 0`` (one draw, by inverse CDF). The copy's epsilon uses its own centre of mass
-  and (unless ``metrics.epsilon.friction`` fixes one) its own friction.
-
-  A copy with any object perturbation builds its own :class:`graspgen.sim.lift.LiftSimulator`
-  (:func:`graspgen.sim.perturbed_copies.with_object_pose`, a copy of the compiled model, ~1 ms); with every
-  object sigma 0 and no ``object_noise`` the copies share the nominal model.
-
-Labels per grasp: ``robustness`` = successes / n, the fraction of copies with outcome 5 (never an average of outcome
-codes), with its Wilson score 95% interval (:func:`graspgen.quality.statistics.wilson_interval`); ``grip_robustness``
-= successes / the copies that reached the grip (outcome 3-5: not stopped by a collision with the ground, the target
-or clutter during placement or approach), with its Wilson interval: how well the grasp holds when the hand gets
-there, apart from whether a misplaced hand can get there (NaN when no copy got there); every copy's outcome code
-(``copy_outcomes``, the failure cause of each copy); the epsilon of every copy (its contacts, by the rule of
-:mod:`graspgen.quality.contact_set`: the copy's rollout contacts when both jaws touched, taken to the object frame
-with the object's pose recorded at the end of closing, so exactly; else ray-cast closing contacts at the copy's pose
-relative to the object; the contact model of ``metrics.epsilon``); ``pfc`` = the fraction of copies with epsilon >
-``epsilon_delta`` (probability of force closure, Weisz and Allen). Grasps that did not succeed get ``n = 0`` and NaN
-labels: a robustness of 0 would read as "tried and failed", which was not measured (filter on outcome 5).
-
-Optional robustness radius (``radius: true``): along each of the six TCP axes (translation along x, y, z in m;
-rotation about x, y, z in rad), the largest offset that still succeeds, by bisection on ``[0, radius_max_*]`` in each
-direction (``radius_iterations`` halvings after a first try at the maximum; a copy succeeding at the maximum gives
-the maximum). The column holds the smaller of the two directions. Bisection finds *a* boundary: where success is not
-monotone along the axis the radius is one of the edges, not necessarily the first. No randomness.
-
-Randomness: all draws for a scene are made up front from the task's generator, ``(grasps, n, 14)`` standard normals
-(:data:`graspgen.quality.perturbation.DRAWS_PER_COPY`, in a fixed order per copy, each drawn whether used or not) in
-grasp order (for every grasp, successful or not), so a grasp's perturbations depend only on the task key and its row,
-never on scheduling, worker count or the other grasps' outcomes.
-
-
+One task per scene, the scene and gripper compiled once (:func:`graspgen.workflows.rollouts.scene_simulator`, the
+rollouts stage's protocol). Every grasp with outcome 5 is rolled out again from ``num_perturbations`` perturbed
+copies, the perturbation model of :mod:`graspgen.quality.perturbation` (TCP pose; optionally the object's planar
+pose; its mass, centre of mass and friction); a copy with an object perturbation gets its own simulator
+(:func:`graspgen.sim.perturbed_copies.with_object_pose`). Each copy's epsilon uses its contacts by the rule of
+:mod:`graspgen.quality.contact_set` and its own centre of mass and friction. ``robustness`` counts successes over all
+copies, ``grip_robustness`` over the copies that reached the grip (outcome 3-5), both with Wilson 95% intervals;
+``pfc`` is the share of copies with epsilon > ``epsilon_delta``. Other grasps get ``n = 0`` and NaN labels (not
+measured, not 0). The optional radius bisects each TCP axis on ``[0, radius_max_*]`` in both directions and keeps
+the smaller; no randomness. All draws for a scene are made up front, ``(grasps, n, DRAWS_PER_COPY)`` standard
+normals in grasp order, so a grasp's copies depend only on the task key and its row.
 
 Output per scene: one Parquet table, one row per grasp of the grasps table, joined on ``(scene_id, grasp_id)``:
 
@@ -155,37 +117,25 @@ def grasp_robustness(
     gripper: GripperSpec,
     epsilon_friction_follows: bool = True,
 ) -> GraspRobustness:
-    """Roll out the perturbed copies of one grasp and label it.
+    """Roll out the perturbed copies of one grasp and label it: a :class:`GraspRobustness`.
 
     Parameters
     ----------
     simulator : LiftSimulator
         The compiled scene with the gripper (its initial configuration = the scene at rest).
     T_tcp_world : (4, 4) float
-        The nominal grasp (TCP to world).
-    width : float
-        Nominal pad separation, m.
+        The nominal grasp (TCP to world); ``width`` its pad separation, m.
     target_body : str
         The target's body name, ``obj/<i>_<name>``.
     geometry : ObjectGeometry
         The target's mesh, centre of mass and torque scale (epsilon of the copies).
     friction : float
-        Coulomb coefficient of the epsilon's friction cones.
+        Coulomb coefficient of the epsilon's friction cones; with ``epsilon_friction_follows`` each copy's perturbed
+        friction is used instead.
     draws : (n, 14) float
-        Standard normals per copy (:data:`~graspgen.quality.perturbation.DRAWS_PER_COPY`): TCP translation, TCP
-        rotation vector, object x, y, yaw (used only with ``params.object_noise``), mass scale, centre-of-mass offset,
-        friction. ``n`` copies are rolled out.
-    epsilon_friction_follows : bool
-        Whether the copies' epsilon uses each copy's perturbed friction (True: ``friction`` is the target's
-        simulated friction) or ``friction`` as given (a fixed ``metrics.epsilon.friction``).
-    params : RobustnessParams
-    epsilon : EpsilonParams
+        Standard normals per copy (:data:`~graspgen.quality.perturbation.DRAWS_PER_COPY`); ``n`` copies are rolled out.
     gripper : GripperSpec
-        The gripper (its pads for the ray-cast contacts).
-
-    Returns
-    -------
-    GraspRobustness
+        Its pads give the ray-cast contacts.
     """
     draws = np.asarray(draws, dtype=np.float64)
     if draws.ndim != 2 or draws.shape[1] != DRAWS_PER_COPY or len(draws) == 0:
@@ -293,14 +243,9 @@ def _labels(outcomes: np.ndarray, epsilons: np.ndarray, sources: list[str], radi
 def robustness_radius(
     simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float, target_body: str, params: RobustnessParams
 ) -> np.ndarray:
-    """Robustness radius of a successful grasp along/about each TCP axis
-    (:data:`~graspgen.workflows.robustness_columns.RADIUS_AXES`), by bisection.
-
-    For each axis and direction: a copy offset by the maximum (``radius_max_translation`` m or
-    ``radius_max_rotation`` rad) is rolled out; if it succeeds the direction's radius is the maximum, else
-    ``radius_iterations`` halvings of ``[0, maximum]`` (0 is the nominal grasp, assumed successful). The axis's
-    radius is the smaller of its two directions. ``(6,)`` float: m for the translations, rad for the rotations.
-    """
+    """Robustness radius (6,) of a successful grasp along and about each TCP axis
+    (:data:`~graspgen.workflows.robustness_columns.RADIUS_AXES`), m and rad: per direction the maximum when a copy
+    offset by it succeeds, else ``radius_iterations`` halvings of ``[0, maximum]``; per axis the smaller direction."""
     out = np.zeros(len(RADIUS_AXES))
     for axis in range(len(RADIUS_AXES)):
         top = params.radius_max_translation if axis < 3 else params.radius_max_rotation
@@ -342,22 +287,9 @@ def scene_robustness(
     params: RobustnessTaskParams,
     rng: np.random.Generator,
 ) -> tuple[pa.Table, dict[str, Any]]:
-    """The robustness table of one scene (module docstring) and metadata (copies rolled out, their outcomes).
-
-    Parameters
-    ----------
-    grasps, rollouts : pyarrow.Table
-        The scene's grasps and rollouts tables (one rollouts row per grasp, same order).
-    simulator : LiftSimulator
-        The scene compiled with the gripper (:func:`graspgen.workflows.rollouts.scene_simulator`).
-    object_names : list of str
-        Object names by scene index; ``friction (n_objects,)`` their friction in the scene.
-    records : dict
-        Object records by name.
-    params : RobustnessTaskParams
-    rng : numpy.random.Generator
-        The task's generator: every draw is made up front, ``(grasps, num_perturbations, DRAWS_PER_COPY)``.
-    """
+    """The robustness table of one scene (module docstring) and its metadata (copies rolled out, their outcomes), from
+    the scene's ``grasps`` and ``rollouts`` (row for row), its compiled ``simulator``, ``object_names`` by scene index
+    with their ``friction``, the object ``records`` by name, and the task's ``rng`` (every draw made up front)."""
     check_joined(grasps, rollouts, "rollouts")
     p = params.robustness
     draws = rng.standard_normal((len(grasps), p.num_perturbations, DRAWS_PER_COPY))

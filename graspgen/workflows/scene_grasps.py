@@ -1,31 +1,14 @@
 """Scene grasps: antipodal candidates on every object of a scene, sampled until enough pass the collision pre-filter.
 
-For each target object of a scene, in its settled pose (:func:`sample_scene_grasps`):
-
-1. **Candidates** come from a shuffled :class:`graspgen.workflows.candidate_pool.CandidatePool` of antipodal candidates
-   (:func:`graspgen.geometry.antipodal.sample_antipodal`, refilled as it runs short), ``batch_size`` at a time.
-2. **Reach screen** (:mod:`graspgen.sim.reach`, ``reach.enabled``): candidates whose hand, as the gripper's own
-   collision geometry has it (pads, finger links, knuckles, palm), would sweep through the target on its approach
-   or reach below the support are dropped before the pre-filter: the approach depth and direction that survive
-   are the ones the real hand can reach. They are counted (``unreachable``), never kept.
-3. **Pre-filter**: :class:`graspgen.sim.prefilter.CollisionChecker` with the real gripper geoms along the approach
-   line labels each remaining candidate: -1 free, or the collision (0 ground/support, 1 target, 2 clutter; the
-   rollout's outcome codes for the same events).
-4. **Keeping**, in trial order: every free candidate until the object has ``max_per_object`` of them; a collision
-   while the object's kept collisions are fewer than ``collision_cap(collision_share / (1 - collision_share),
-   max_per_object)`` (:func:`graspgen.workflows.candidate_pool.collision_cap`), and none with ``keep_rejected`` false.
-   At the end the first ``collision_cap(collision_share / (1 - collision_share), free)`` collisions stay, so
-   collisions are at most ``collision_share`` of the object's rows also when it falls short of its free target
-   (an object without a free candidate has no rows). The loop stops when the free
-   target is met, after ``max_candidates`` candidates (a warning says how far it got), or when the sampler finds no
-   candidate at all.
-5. **Wider than the stroke**: an object wider at its narrowest (:func:`graspgen.geometry.antipodal.
-   narrowest_width`) than the gripper closes on (``max_width - sampler.min_clearance``) can only be held by a thin
-   part (a rim, a handle); its collisions are not kept, and when no candidate passes the pre-filter it has no rows
-   and one warning says why.
-
-Randomness: per target object in scene order, the reach screen's surface points, then the pool's refills; all from
-the generator passed in, so the same scene, objects, settings and seed give the same table, byte for byte.
+For each target object in its settled pose (:func:`sample_scene_grasps`), candidates come ``batch_size`` at a time
+from a :class:`graspgen.workflows.candidate_pool.CandidatePool`; the reach screen (:mod:`graspgen.sim.reach`) drops
+those the hand's own collision geometry cannot reach (counted as ``unreachable``); the pre-filter
+(:class:`graspgen.sim.prefilter.CollisionChecker`) labels the rest -1 free or 0/1/2 collision. Free candidates are
+kept until ``max_per_object``, collisions up to ``collision_share`` of the object's rows
+(:func:`graspgen.workflows.candidate_pool.collision_cap`); the loop stops at the target, at ``max_candidates``
+(with a warning) or when the sampler finds nothing. An object wider at its narrowest than the gripper closes on
+keeps no collisions. Randomness comes only from the generator passed in, per object in scene order, so the same
+inputs and seed give the same table, byte for byte.
 
 Output per scene: one Parquet table, one row per kept candidate, ``grasp_id`` 0..n-1 in trial order. Columns:
 
@@ -80,10 +63,9 @@ class GraspsParams:
     """Settings of the ``grasps`` stage (config section ``grasps``)."""
 
     gripper: str = DEFAULT_GRIPPER
-    """Gripper model: robotiq_2f85_mesh (the Robotiq 2F-85 from its collision meshes, knuckles and 4-bar linkage),
-    robotiq_2f85 (the same hand as boxes: faster, no knuckles), panda or box_jaw, or the path of a gripper file
-    (.yaml, .yml, .json; relative to the current folder; see graspgen.grippers.read_gripper). The grasp table's
-    gripper column holds it."""
+    """Gripper model: robotiq_2f85_mesh (the Robotiq 2F-85 from its collision meshes), robotiq_2f85 (the same hand as
+    boxes: faster), panda or box_jaw, or the path of a gripper file (.yaml, .yml, .json; see
+    graspgen.grippers.read_gripper). The grasp table's gripper column holds it."""
     targets: tuple[str, ...] = ()
     """Object names to grasp; empty grasps every object of every scene."""
     max_per_object: int = 48
@@ -242,29 +224,17 @@ def _sample_object(mesh: trimesh.Trimesh, pose: np.ndarray, body: str, checker: 
 def sample_scene_grasps(
     scene_path: Path, load_object: Any, params: GraspsParams, rng: np.random.Generator
 ) -> tuple[pa.Table, dict[str, Any]]:
-    """Sample, screen and pre-filter the grasps of one scene until each target object has its free candidates.
-
-    Parameters
-    ----------
-    scene_path : Path
-        The scene shard.
-    load_object : callable
-        ``name -> ObjectRecord``.
-    params : GraspsParams
-    rng : numpy.random.Generator
-        The only source of randomness (module docstring).
+    """Sample, screen and pre-filter the grasps of one scene (the shard ``scene_path``; ``load_object`` maps a name to
+    its record) until each target object has its free candidates; ``rng`` is the only source of randomness.
 
     Returns
     -------
     table : pyarrow.Table
         :data:`SCHEMA`, the kept candidates in trial order.
     meta : dict
-        ``grasps`` (rows), ``prefilter`` (rows by code name), ``tried`` (candidates, all objects),
-        ``sampler_rejections`` (summed), ``objects`` (one entry per target object in scene order: ``object_index``,
-        ``object_name``, ``tried``, ``unreachable`` by cause, ``prefilter`` (everything checked, by code name),
-        ``kept`` (free, collisions), ``stopped`` (``target``, ``max_candidates`` or ``no_candidates``), ``sampled``,
-        ``sampler_rejections``, ``narrowest``, ``wide``) and ``warnings`` (texts without the scene's name, so the
-        engine lists each once).
+        ``grasps``, ``prefilter`` (rows by code name), ``tried``, ``sampler_rejections``, ``objects`` (per target in
+        scene order: index, name, tried, unreachable, prefilter, kept, ``stopped``, sampled, rejections, narrowest,
+        wide) and ``warnings`` (without the scene's name, so the engine lists each once).
     """
     scene = read_scene(scene_path)
     records: dict[str, ObjectRecord] = {n: load_object(n) for n in sorted(set(scene.object_names))}

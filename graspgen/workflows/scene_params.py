@@ -90,10 +90,9 @@ class CameraParams:
     """Render images and clouds. False makes scenes without images (no OpenGL needed); camera poses are still
     sampled and stored."""
     clouds: Literal["world", "camera", "both", "none"] = "world"
-    """Which point-cloud frames to store. The clouds hold the object and support points of every view (ground
-    and empty pixels are left out; the depth images keep them). A frame that is not stored is one call away
-    (:meth:`SceneRecord.cloud`). Clouds are most of a shard: ~0.45 MB per view and frame at 320 x 240 (float32
-    coordinates hardly compress), against ~20 kB for the depth image they come from; ``none`` keeps shards small."""
+    """Which point-cloud frames to store (object and support points of every view; the depth images keep the rest). A
+    frame not stored is one call away (:meth:`SceneRecord.cloud`); clouds are most of a shard, so ``none`` keeps shards
+    small."""
     depth_noise: DepthNoiseParams = dataclasses.field(default_factory=DepthNoiseParams)
     """Optional depth noise (off by default)."""
 
@@ -148,9 +147,8 @@ class ScenesParams:
     gap: float = 0.005
     """Smallest clearance between two objects' footprints, and to the support's edges and walls, at placement, m."""
     friction: float | tuple[float, float] = 0.8
-    """Sliding friction of each object: a value, or [lo, hi] drawn uniformly per object. An object with its own
-    friction (``friction`` in its object manifest row: ``ObjectRecord.friction``) keeps its own; its draw is still
-    made, so the other objects' draws stay what they were."""
+    """Sliding friction of each object: a value, or [lo, hi] drawn uniformly per object. An object with its own friction
+    (its manifest row's ``friction``) keeps it; its draw is still made, so the other objects' draws do not move."""
     max_tries: int = 100
     """Placements tried per object before it is left out of the scene."""
     max_scene_tries: int = 10
