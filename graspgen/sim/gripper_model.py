@@ -83,6 +83,9 @@ model: :mod:`graspgen.sim.gripper_state`):
   resists torsion too; the Panda's pivot threshold lands within 4 % of ``mu F r_mean``, box pads resist 35-40 %
   more. Rolling friction is not derived: the bundled pads are condim 4 (a flat pad resists tipping by shifting its
   pressure, not by friction), so rolling is the larger of the two geoms' values, as before, and unused.
+  With ``LiftParams.pad_torsion = "patch"`` (the default) the simulator replaces the whole face by the part of it
+  the object presses once the jaws have closed (:mod:`graspgen.sim.pad_patch`): the pads then carry the value and
+  the objects 0. Each pad has a box site ``<prefix><side>_face`` on its contact face for that.
 
 Physics settings that hold objects (timestep 2 ms, elliptic cones, impratio 10, implicitfast):
 :mod:`graspgen.sim.physics`.
@@ -100,6 +103,7 @@ from graspgen.errors import SettingsError
 from graspgen.grippers import Box, GripperSpec, Mesh, Shape
 from graspgen.grippers.shapes import bounds_of
 from graspgen.sim import gripper_import  # noqa: F401 - derives grippers given as robot models (gripper files' model:)
+from graspgen.sim.pad_patch import rectangle_arm
 from graspgen.sim.physics import physics_options
 from graspgen.validation import check_choice, check_instance
 
@@ -120,6 +124,10 @@ GRIPPER_CONTYPE = 2
 GRIPPER_CONAFFINITY = 1
 #: Geom group of every gripper geom (MuJoCo's viewer shows groups 0-2 by default).
 GRIPPER_GEOM_GROUP = 2
+#: Site group of the pads' face sites (hidden in the viewer's default groups).
+_FACE_SITE_GROUP = 5
+#: Half thickness (m) of the face sites (MuJoCo refuses a zero size).
+_FACE_SITE_HALF_THICKNESS = 1e-4
 
 #: Armature (kg) of each jaw's slide joint: the reflected inertia of the drive (motor + screw / linkage). Without it
 #: a 15-60 g jaw between the stiff pad contact and the saturated servo chatters (measured: +-1.5 mm width jitter
@@ -327,7 +335,18 @@ def _add_jaw_slide(spec: GripperSpec, base: mujoco.MjsBody, *, p: str, side: str
     else:  # MuJoCo 3: one linear coefficient
         joint.damping = spec.jaw_damping
     joint.armature = _JAW_ARMATURE
+    _add_face_site(spec, jaw, p=p, side=side)
     return jaw
+
+
+def _add_face_site(spec: GripperSpec, jaw: mujoco.MjsBody, *, p: str, side: str) -> None:
+    """The box site ``<p><side>_face`` on the pad's contact face (the jaw's frame), half sizes ``(t, width / 2,
+    length / 2)`` of ``pad_size`` (t: a token thickness): where :mod:`graspgen.sim.pad_patch` casts its rays."""
+    face = jaw.add_site()
+    face.name = f"{p}{side}_face"
+    face.type = mujoco.mjtGeom.mjGEOM_BOX
+    face.size = [_FACE_SITE_HALF_THICKNESS, spec.pad_size[1] / 2.0, spec.pad_size[2] / 2.0]
+    face.group = _FACE_SITE_GROUP
 
 
 def _add_jaw(spec: GripperSpec, base: mujoco.MjsBody, *, p: str, side: str, sign: float, friction: str,
@@ -503,14 +522,11 @@ def attach_gripper(world: mujoco.MjSpec, spec: GripperSpec, *, name_prefix: str 
 
 
 def pad_torsion_arm(spec: GripperSpec) -> float:
-    """Torsional friction arm (m) of a pad: the mean distance of its contact face (``pad_size`` y x z, a rectangle
-    of half-sides p, q) from the face's centroid, the moment ``mu F r_mean`` that Coulomb friction under uniform
-    pressure resists about the face normal, per unit ``mu F`` (module docstring). Closed form of
-    ``(1 / (p q)) int_0^p int_0^q sqrt(x^2 + y^2) dy dx = (2 p q d + p^3 ln((q + d) / p) + q^3 ln((p + d) / q))
-    / (6 p q)`` with ``d = sqrt(p^2 + q^2)``; 0.3826 x the side of a square (Panda, 17.4 x 17.6 mm: 6.70 mm)."""
-    p, q = spec.pad_size[1] / 2.0, spec.pad_size[2] / 2.0
-    d = float(np.hypot(p, q))
-    return float((2.0 * p * q * d + p ** 3 * np.log((q + d) / p) + q ** 3 * np.log((p + d) / q)) / (6.0 * p * q))
+    """Torsional friction arm (m) of a pad: the mean distance of its contact face (``pad_size`` y x z) from the
+    face's centroid, the moment ``mu F r_mean`` that Coulomb friction under uniform pressure resists about the face
+    normal, per unit ``mu F`` (module docstring; :func:`graspgen.sim.pad_patch.rectangle_arm`; Panda, 17.4 x 17.6 mm:
+    6.70 mm)."""
+    return rectangle_arm(spec.pad_size[1] / 2.0, spec.pad_size[2] / 2.0)
 
 
 def object_torsion(spec: GripperSpec, mu: float) -> float:

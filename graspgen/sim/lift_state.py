@@ -18,9 +18,11 @@ import numpy as np
 
 from graspgen.errors import SettingsError
 from graspgen.geometry.poses import rotation_angle
+from graspgen.sim.gripper_model import GRIPPER_GEOM_GROUP
 from graspgen.sim.lift_model import StaticCheck, apply_contact_overrides, index_scene, set_grip
 from graspgen.sim.lift_rules import Drift, closing_tolerance, jaw_contacts, live_code, rollout_result
 from graspgen.sim.motion import rollout_schedule
+from graspgen.sim.pad_patch import PatchTorsion
 from graspgen.sim.prefilter import TARGET_TOUCH_DEPTH, touch_allowance
 from graspgen.sim.protocols import LiftParams, RolloutResult
 from graspgen.validation import check_instance
@@ -72,6 +74,11 @@ class LiftState:
         self._cos_slip = math.cos(min(params.slip_rotation_tolerance, math.pi))
         if params.protocol == "acronym":
             apply_contact_overrides(m, params.acronym, ix, prefix)
+        explicit = params.protocol == "acronym" and params.acronym.torsional_friction is not None
+        self.pad_patch = None if params.pad_torsion == "face" or explicit else PatchTorsion(
+            m, prefix, ~ix.geom_is_gripper & ~ix.geom_static, GRIPPER_GEOM_GROUP)
+        """The ``"patch"`` pad-torsion model (:mod:`graspgen.sim.pad_patch`); None with ``"face"`` or an explicit
+        ``acronym.torsional_friction``, which then holds for every contact."""
         self.data = mujoco.MjData(m)
         """The one :class:`mujoco.MjData` every rollout reuses (after a rollout: its final state)."""
         self._qpos_init = self._initial_qpos(m, qpos)
@@ -146,6 +153,8 @@ class LiftState:
         self._ctrl[self.index.act] = width
         self._mocap_pos[:] = pos
         self._mocap_quat[:] = quat
+        if self.pad_patch is not None:
+            self.pad_patch.placed(m)
         mujoco.mj_forward(m, d)
 
     def contact_code(self, roles: np.ndarray, target: int, allowance: np.ndarray | None = None) -> int | None:
@@ -305,7 +314,11 @@ class LiftState:
         """Close (:meth:`_close`) and record the end of closing: ``(closed_width, motion_closing, pose_closed,
         contacts)``."""
         close_mark = self.mark(target)
+        if self.pad_patch is not None:
+            self.pad_patch.closing(self.model, target)
         self._close(observer)
+        if self.pad_patch is not None:
+            self.pad_patch.closed(self.model, self.data, target)
         return self.width(), self.motion(target, close_mark), self.body_pose(target), self.jaw_contacts(roles)
 
     def _final_drift(self, target: int, drift: Drift | None) -> tuple[float, float]:

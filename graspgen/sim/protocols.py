@@ -39,12 +39,13 @@ from graspgen.validation import (
     check_number,
     check_vector,
 )
-from shared_utils.keys import KEY_NAME, KEY_VALUES
+from shared_utils.keys import KEY_NAME, KEY_OMIT_DEFAULT, KEY_VALUES
 from shared_utils.renames import RENAMED_FROM, RENAMED_VALUES, renamed_message
 
 __all__ = [
     "Outcome",
     "OUTCOME_NAMES",
+    "PAD_TORSION",
     "PHASES",
     "PROTOCOLS",
     "PROTOCOL_KEYS",
@@ -55,6 +56,10 @@ __all__ = [
     "RolloutResult",
     "check_protocol",
 ]
+
+
+PAD_TORSION = ("face", "patch")
+"""The pads' torsional friction models (:attr:`LiftParams.pad_torsion`)."""
 
 
 class Outcome(enum.IntEnum):
@@ -450,6 +455,10 @@ class LiftParams:
     """Maximum line-search iterations per solver iteration."""
     integrator: str = "implicitfast"
     """``"implicitfast"`` (implicit in the stiff jaw damping), ``"implicit"``, ``"euler"`` or ``"rk4"``."""
+    pad_torsion: str = field(default="patch", metadata={KEY_OMIT_DEFAULT: True})
+    """The pads' torsional friction arm: ``"face"``, the whole pad face's (:func:`graspgen.sim.gripper_model.
+    pad_torsion_arm`), or ``"patch"``, the part of the face the target covers once the jaws have closed
+    (:mod:`graspgen.sim.pad_patch`)."""
 
     def __post_init__(self) -> None:
         check_protocol("protocol", self.protocol)
@@ -475,6 +484,7 @@ class LiftParams:
         object.__setattr__(self, "noslip_iterations", check_int("noslip_iterations", self.noslip_iterations, low=0))
         object.__setattr__(self, "iterations", check_int("iterations", self.iterations, low=1))
         object.__setattr__(self, "ls_iterations", check_int("ls_iterations", self.ls_iterations, low=1))
+        check_choice("pad_torsion", self.pad_torsion, PAD_TORSION)
         self.physics_options((0.0, 0.0, -9.81))  # validates timestep, cone, impratio, integrator (names the field)
 
     def physics_options(self, gravity) -> PhysicsOptions:

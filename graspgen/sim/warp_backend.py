@@ -175,6 +175,13 @@ class WarpLiftSimulator:
             """``(nworld,) vec3`` gravity per world, written into the model's options."""
             # one gravity per world (MJWarp broadcasts a leading '*' axis)
             self.device_model.opt.gravity = self.world_gravity
+            self.world_friction = None
+            """``(nworld, ngeom) vec3`` geom friction per world with the ``"patch"`` pad torsion (each world's pads
+            carry their own torsional coefficient, :mod:`graspgen.sim.pad_patch`); None with ``"face"``."""
+            if cpu.pad_patch is not None:
+                self.world_friction = self.wp.array(np.repeat(cpu.model.geom_friction[None], self.nworld, axis=0)
+                                                    .astype(np.float32), dtype=self.wp.vec3)
+                self.device_model.geom_friction = self.world_friction
         self.naconmax = int(self.device_data.contact.geom.shape[0])
         """Contacts allocated for the whole batch."""
         self.segments = disturbance_segments(params, cpu.schedule)

@@ -153,6 +153,22 @@ class BatchRun:
         self.xfrc = np.zeros((self.B, cpu.model.nbody, 6))
         self._pad = pad
         self.forces_changed = False
+        self.friction = None if sim.world_friction is None else np.repeat(cpu.model.geom_friction[None], self.B, 0)
+        """``(nworld, ngeom, 3)`` each world's geom friction with the ``"patch"`` pad torsion, else None."""
+        if self.friction is not None:  # placement: 0 on the pads (LiftState.place); closing: the whole face's
+            self.friction[:, cpu.pad_patch.pad_geoms, 1] = 0.0
+            if self.C == 0:
+                for i in range(self.B):
+                    self._pad_torsion_closing(i)
+
+    def _pad_torsion_closing(self, i: int) -> None:
+        """World ``i`` starts closing: its pads carry the target's whole-face torsion (``PatchTorsion.closing``)."""
+        cpu = self.sim.cpu
+        target = int(self.targets[i % self.n])
+        cpu.pad_patch.closing(cpu.model, target)
+        pads = cpu.pad_patch.pad_geoms
+        self.friction[i, pads, 1] = cpu.model.geom_friction[pads, 1]
+        self.forces_changed = True
 
     # -- the protocol's hooks (the free-space protocols here; graspgen.sim.warp_table.TableRun: ``table``) -------
 
@@ -197,6 +213,8 @@ class BatchRun:
             sim.device_data.mocap_quat.assign(mq)
             sim.world_gravity.assign(self.gravity.astype(np.float32))
             sim.device_data.xfrc_applied.assign(self.xfrc.astype(np.float32))
+            if self.friction is not None:
+                sim.world_friction.assign(self.friction.astype(np.float32))
         for s in self.states:
             s["ctrl"] = s["ctrl"].copy()
         if self.C == 0:  # closing from the start: every world commands the smallest width (LiftSimulator._close)
@@ -311,6 +329,8 @@ class BatchRun:
             with self.sim.wp.ScopedDevice(self.sim.device):
                 self.sim.world_gravity.assign(self.gravity.astype(np.float32))
                 self.sim.device_data.xfrc_applied.assign(self.xfrc.astype(np.float32))
+                if self.friction is not None:
+                    self.sim.world_friction.assign(self.friction.astype(np.float32))
 
     def _end_closing(self, i: int, a: dict, p: np.ndarray, R: np.ndarray) -> None:
         """Closing ended in world ``i``: the CPU backend's record and rule, then the disturbance starts."""
@@ -321,6 +341,11 @@ class BatchRun:
         gravity = self.gravity[i].copy() if self.gravity[i].any() else None
         closed_width, motion, pose, contacts = closing_record(self.sim.cpu, i, self.states[i], int(self.targets[i]),
                                                               self.roles[i], a, gravity)
+        if self.friction is not None:  # the CPU data holds world i's closed state: its pads' patch torsion
+            cpu = self.sim.cpu
+            cpu.pad_patch.closed(cpu.model, cpu.data, int(self.targets[i]))
+            pads = cpu.pad_patch.pad_geoms
+            self.friction[i, pads, 1] = cpu.model.geom_friction[pads, 1]
         self.sim.timings["closing_record_s"] += time.perf_counter() - t0
         self.closing[i] = (closed_width, motion, pose, contacts)
         if not both_jaws(contacts):

@@ -137,6 +137,8 @@ class TableRun(BatchRun):
         q = cpu.index.jaw_qadr
         self.last_width[i] = a["qpos"][i, q[0]] + a["qpos"][i, q[1]]
         self.seg[i], self.k[i] = self.C, 0
+        if self.friction is not None:
+            self._pad_torsion_closing(i)
 
     def _end_closing(self, i: int, a: dict, p: np.ndarray, R: np.ndarray) -> None:
         self.z0[i] = a["xipos"][i, self.targets[i], 2]
