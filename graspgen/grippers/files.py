@@ -191,7 +191,19 @@ def _from_model(data: Mapping[str, Any], names: list[str], base_dir: Path, file:
     return spec_from_model(model_ref_from_dict(data, base_dir, overrides), file=file)
 
 
-_FILE_CACHE: dict[tuple, GripperSpec] = {}
+_FILE_CACHE: dict[tuple, tuple[GripperSpec, tuple]] = {}
+
+
+def _file_stamps(files) -> tuple:
+    """``((path, mtime_ns, size), ...)`` of ``files``; a file that is gone stamps ``(path, None, None)``."""
+    stamps = []
+    for f in files:
+        try:
+            st = os.stat(f)
+            stamps.append((str(f), st.st_mtime_ns, st.st_size))
+        except OSError:
+            stamps.append((str(f), None, None))
+    return tuple(stamps)
 
 
 def read_gripper(path: str | os.PathLike) -> GripperSpec:
@@ -218,8 +230,8 @@ def read_gripper(path: str | os.PathLike) -> GripperSpec:
       :mod:`graspgen.sim.gripper_import`), and only ``name`` and the scalars that supply or override derived values
       may stand beside it.
 
-    Returns the spec (cached while the gripper file is unchanged: a changed model file is read again after the
-    gripper file is touched or in a new process). Raises :class:`SettingsError` in one line,
+    Returns the spec (cached while the gripper file and the model files it names, meshes included, are unchanged).
+    Raises :class:`SettingsError` in one line,
     ``gripper: <path>: <what>``.
     """
     label = os.fspath(path)
@@ -235,7 +247,9 @@ def read_gripper(path: str | os.PathLike) -> GripperSpec:
         raise SettingsError(f"gripper: {label}: no such gripper file; bundled grippers: {bundled_names()}") from None
     key = (label, str(p.resolve()), stat.st_mtime_ns, stat.st_size)
     if key in _FILE_CACHE:
-        return _FILE_CACHE[key]
+        spec, stamps = _FILE_CACHE[key]
+        if _file_stamps(spec.model_files) == stamps:
+            return spec
     try:
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -253,7 +267,7 @@ def read_gripper(path: str | os.PathLike) -> GripperSpec:
         spec = gripper_from_dict(data, base_dir=p.parent, file=label)
     except SettingsError as exc:
         raise SettingsError(f"gripper: {label}: {' '.join(str(exc).split())}") from None
-    _FILE_CACHE[key] = spec
+    _FILE_CACHE[key] = (spec, _file_stamps(spec.model_files))
     return spec
 
 

@@ -4,6 +4,8 @@ the 'grippers' extra against the bundled hands made by hand from the same or the
 
 from __future__ import annotations
 
+import os
+
 import mujoco
 import numpy as np
 import pytest
@@ -81,6 +83,17 @@ def test_a_derived_hand_closes_in_mujoco_to_its_stroke(tmp_path):
     assert gripper_width(model, data) == pytest.approx(spec.min_width, abs=2e-4)
     roles = gripper_geom_ids(model)
     assert len(roles["pad"]) == 2 and len(roles["finger"]) == 2 and len(roles["palm"]) == 1
+
+
+def test_an_edited_model_file_is_read_again(tmp_path):
+    path = _hand(tmp_path)
+    assert read_gripper(path).force_limit == 40.0
+    assert read_gripper(path) is read_gripper(path)  # unchanged files: the cached spec
+    urdf = tmp_path / "hand.urdf"
+    stamp = urdf.stat().st_mtime_ns
+    urdf.write_text(_URDF.format(effort=55.0, palm_mesh=""))  # the YAML is not touched
+    os.utime(urdf, ns=(stamp + 10**9, stamp + 10**9))  # a later mtime even on a coarse clock
+    assert read_gripper(path).force_limit == 55.0
 
 
 def test_overrides_narrow_the_stroke_and_supply_values(tmp_path):
