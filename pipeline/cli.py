@@ -336,13 +336,20 @@ def _add_config_show(config_app: typer.Typer, project: Project) -> None:
         out: OutOpt = None,
         set_: SetOpt = None,
         comments: Annotated[bool, typer.Option(help="Print each key's description.")] = True,
+        every: Annotated[bool, typer.Option("--all", help="Every key, not only those that differ from the defaults.")]
+        = False,
     ) -> None:
-        """Print the resolved config (file + overrides + defaults, or the one OUT remembers) as YAML."""
+        """Print the resolved config (file + overrides + defaults, or the one OUT remembers) as YAML: the keys that
+        differ from the defaults, or with --all every key."""
         try:
             cfg = load(project, config, set_, out=out)
         except (GenError, *project.user_errors) as exc:
             fail(Console(stderr=True), str(exc))
-        sys.stdout.write(to_yaml(cfg, comments=comments))
+        if every:
+            sys.stdout.write(to_yaml(cfg, comments=comments))
+            return
+        sys.stdout.write("# The keys that differ from the defaults; every key: gen config show --all\n")
+        sys.stdout.write(to_yaml(cfg, comments=comments, defaults=load_config(project.schema)))
 
 
 def _add_clean(app: typer.Typer, project: Project) -> None:

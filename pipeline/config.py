@@ -6,10 +6,12 @@ range is a :class:`~pipeline.errors.ConfigError` whose message starts with the k
 
     objects.pahts: unknown key; valid keys: bundled, coacd, density, ...
     objects.density: must be > 0, got -1
-    object_grasps.lift.protocol: protocol 'graspgen' was renamed 'graspdatagen'
+    object_grasps.protocol: protocol 'graspgen' was renamed 'graspdatagen'
+    rollouts.lift.timestep: moved to physics.timestep
 
 A key or value that was renamed (field metadata :data:`shared_utils.renames.RENAMED_FROM` /
-:data:`~shared_utils.renames.RENAMED_VALUES`) is answered with its new name.
+:data:`~shared_utils.renames.RENAMED_VALUES`) or moved (a section's :data:`MOVED`) is answered with its new name;
+a key the schema derives (a section's :data:`DERIVED`) is answered with where it comes from.
 
 Range checks live in each dataclass's ``__post_init__`` and raise ``ValueError("field: message")``; the loader
 prefixes the section path.
@@ -30,7 +32,9 @@ from pipeline.errors import ConfigError
 from shared_utils.renames import RENAMED_FROM, RENAMED_VALUES, renamed_message
 
 __all__ = [
+    "DERIVED",
     "FLATTEN",
+    "MOVED",
     "RunConfig",
     "field_docs",
     "load_config",
@@ -46,6 +50,42 @@ sit beside the section's other keys in the file, in ``to_dict``, in ``to_yaml`` 
 (``dataclasses.field(default_factory=Inner, metadata={FLATTEN: True})``), so a section can embed another settings
 class without repeating its fields and without changing the keys users write. Its own field docstrings are the
 comments ``to_yaml`` writes for them."""
+
+
+DERIVED = "config_derived"
+"""Class attribute of a config section: ``{key path in the section ("prefilter.width_margin"): what it is derived
+from}``. Those fields are no settings: a file that sets one fails with an error naming the source, ``to_yaml``
+leaves them out, and the schema's ``__post_init__`` fills them in."""
+
+MOVED = "config_moved"
+"""Class attribute of a config section: a function of a key path in the section (``"lift.timestep"``) that returns
+the key's path now (``"physics.timestep"``) or None. A file that still writes a moved key fails with an error naming
+the new one."""
+
+
+def _leaf_paths(raw: Any, path: tuple[str, ...] = ()) -> typing.Iterator[tuple[str, ...]]:
+    """The key paths of the leaves of a nested mapping (an empty mapping is a leaf)."""
+    if isinstance(raw, dict) and raw:
+        for key, value in raw.items():
+            yield from _leaf_paths(value, (*path, str(key)))
+    else:
+        yield path
+
+
+def _check_not_moved(cls: type, raw: dict, prefix: str) -> None:
+    """ConfigError for a key of ``raw`` that ``cls`` says has moved (:data:`MOVED`) or is derived (:data:`DERIVED`)."""
+    moved = getattr(cls, MOVED, None)
+    derived = getattr(cls, DERIVED, {})
+    if moved is None and not derived:
+        return
+    for path in _leaf_paths(raw):
+        dotted = ".".join(path)
+        new = moved(dotted) if moved is not None else None
+        if new:
+            raise ConfigError(f"{prefix}{dotted}: moved to {new}")
+        for i in range(1, len(path) + 1):
+            if ".".join(path[:i]) in derived:
+                raise ConfigError(f"{prefix}{dotted}: not a setting: derived from {derived['.'.join(path[:i])]}")
 
 
 def _flattened(cls: type, hints: dict[str, Any]) -> dict[str, set[str]]:
@@ -178,6 +218,7 @@ def _build(cls: type, raw: Any, prefix: str, base: Any = None) -> Any:
         raw = {}
     if not isinstance(raw, dict):
         raise ConfigError(f"{prefix.rstrip('.') or '(top level)'}: must be a mapping, got {raw!r}")
+    _check_not_moved(cls, raw, prefix)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
     flat = _flattened(cls, hints)
@@ -316,7 +357,17 @@ def to_dict(obj: Any) -> Any:
 
 
 def field_docs(cls: type) -> dict[str, str]:
-    """The attribute docstrings of a dataclass (the string literal under each field), by field name."""
+    """The attribute docstrings of a dataclass (the string literal under each field), by field name; a subclass's
+    over those of the dataclasses it derives from."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(klass):
+            docs.update(_own_field_docs(klass))
+    return docs
+
+
+def _own_field_docs(cls: type) -> dict[str, str]:
+    """The attribute docstrings written in the body of ``cls`` itself."""
     import ast
     import inspect
     import textwrap
@@ -340,26 +391,41 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def to_yaml(obj: Any, *, comments: bool = True) -> str:
-    """YAML text of a config tree, each key preceded by its field docstring as a comment."""
+def to_yaml(obj: Any, *, comments: bool = True, defaults: Any = None) -> str:
+    """YAML text of a config tree, each key preceded by its field docstring as a comment; derived keys (a section's
+    :data:`DERIVED`) left out. With ``defaults`` (a tree of the same schema), only the keys whose values differ from
+    it, in the sections that hold one."""
     out = io.StringIO()
-    _emit_yaml(obj, out, 0, comments)
+    _emit_yaml(obj, out, 0, comments, frozenset(), defaults if defaults is not None else _EVERY)
     return out.getvalue()
 
 
-def _emit_yaml(obj: Any, out: io.StringIO, indent: int, comments: bool) -> None:
+_EVERY = object()
+"""``_emit_yaml``'s ``defaults`` when every key is written."""
+
+
+def _emit_yaml(obj: Any, out: io.StringIO, indent: int, comments: bool, skip: frozenset[str], defaults: Any) -> None:
     docs = field_docs(type(obj)) if comments else {}
     pad = "  " * indent
+    skip = skip | set(getattr(type(obj), DERIVED, {}))
     for f in dataclasses.fields(obj):
-        value = getattr(obj, f.name)
-        if f.metadata.get(FLATTEN):
-            _emit_yaml(value, out, indent, comments)
+        if f.name in skip:
             continue
-        if f.name in docs:
-            out.write(f"{pad}# {docs[f.name]}\n")
+        value = getattr(obj, f.name)
+        default = _EVERY if defaults is _EVERY or defaults is None else getattr(defaults, f.name)
+        inner = frozenset(p.removeprefix(f"{f.name}.") for p in skip if p.startswith(f"{f.name}."))
+        if f.metadata.get(FLATTEN):
+            _emit_yaml(value, out, indent, comments, inner, default)
+            continue
         if dataclasses.is_dataclass(value):
-            out.write(f"{pad}{f.name}:\n")
-            _emit_yaml(value, out, indent + 1, comments)
+            body = io.StringIO()
+            _emit_yaml(value, body, indent + 1, comments, inner, default)
+            text = f"{pad}{f.name}:\n{body.getvalue()}" if body.getvalue() or default is _EVERY else ""
+        elif default is _EVERY or to_dict(value) != to_dict(default):
+            flow = yaml.safe_dump({f.name: to_dict(value)}, default_flow_style=True, sort_keys=False, width=1000)
+            text = f"{pad}{flow.strip()[1:-1]}\n"  # drop the braces of the one-key flow mapping
         else:
-            text = yaml.safe_dump({f.name: to_dict(value)}, default_flow_style=True, sort_keys=False, width=1000)
-            out.write(f"{pad}{text.strip()[1:-1]}\n")  # drop the braces of the one-key flow mapping
+            text = ""
+        if text and f.name in docs:
+            out.write(f"{pad}# {docs[f.name]}\n")
+        out.write(text)

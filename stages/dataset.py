@@ -375,7 +375,7 @@ def _exports(root: Path, params: DatasetParams, object_sets: Sequence[str]) -> l
 
 
 def config_yaml(sections: Mapping[str, Any]) -> str:
-    """The resolved config as YAML with every key's description (as ``gen config show``), ``run`` left out."""
+    """The resolved config as YAML with every key's description (as ``gen config show --all``), ``run`` left out."""
     lines = [
         "# The resolved config this dataset was made with (every stage section; the run settings are left out).",
         "# Make it again: gen run --config config.yaml --out OUT",

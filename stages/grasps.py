@@ -32,6 +32,10 @@ class GraspsStage(GraspStage):
     version = 1
     ext = "parquet"
 
+    def params(self, config: Any) -> GraspsParams:
+        """The library's settings of the ``grasps`` section (its derived keys filled in)."""
+        return config.grasps.library_params()
+
     def tasks(self, params: GraspsParams, upstream: Upstream) -> list[Task]:
         library = upstream.ids("objects")
         unknown = sorted(set(params.targets) - set(library))

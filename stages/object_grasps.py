@@ -51,7 +51,7 @@ class ObjectGraspsStage(GraspStage):
     ext = "parquet"
 
     def params(self, config: Any) -> ObjectGraspsTaskParams:
-        section: ObjectGraspsParams = config.object_grasps
+        section: ObjectGraspsParams = config.object_grasps.library_params()
         warp, packages = backend_key(section.backend, section.warp)
         return ObjectGraspsTaskParams(dataclasses.replace(section, warp=warp), packages)
 

@@ -29,6 +29,10 @@ class PlacedGraspsStage(GraspStage):
     version = 1
     ext = "parquet"
 
+    def params(self, config: Any) -> PlacedGraspsParams:
+        """The library's settings of the ``placed_grasps`` section (its derived keys filled in)."""
+        return config.placed_grasps.library_params()
+
     def tasks(self, params: PlacedGraspsParams, upstream: Upstream) -> list[Task]:
         library = upstream.ids("objects")
         with_sets = set(upstream.ids("object_grasps"))

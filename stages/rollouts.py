@@ -50,7 +50,7 @@ class RolloutsStage(GraspStage):
     ext = "parquet"
 
     def params(self, config: Any) -> RolloutsTaskParams:
-        section: RolloutsParams = config.rollouts
+        section: RolloutsParams = config.rollouts.library_params()
         warp, packages = backend_key(section.backend, section.warp)
         return RolloutsTaskParams(dataclasses.replace(section, warp=warp), packages)
 

@@ -7,7 +7,8 @@ The counts, each over the engine, the library, the stages and the command line (
 ``stages``, ``graspgen_cli`` and ``shared_utils`` where present; tests, studies and bench are left out):
 
 - ``config_leaf_keys``: settings reachable from ``stages.config.Config``, walking the field types: a field whose
-  type is a settings dataclass (``X`` or ``X | None``) is a section and is walked, any other field is one leaf key.
+  type is a settings dataclass (``X`` or ``X | None``) is a section and is walked, any other field is one leaf key;
+  keys a section derives (``config_derived``) are not settings and are not counted.
 - ``default_yaml_keys``: leaf keys that ``configs/default.yaml`` sets (a list is one key).
 - ``protocol_branches`` / ``backend_branches`` outside ``graspgen/sim`` (and, for reference, protocol branches in
   it): comparisons (``==``, ``!=``, ``in``,
@@ -114,13 +115,18 @@ def _section(tp: object) -> type | None:
     return None
 
 
-def leaf_keys(cls: type) -> int:
-    """Leaf settings reachable from the dataclass ``cls`` (module docstring)."""
+def leaf_keys(cls: type, skip: frozenset[str] = frozenset()) -> int:
+    """Leaf settings reachable from the dataclass ``cls`` (module docstring); the keys a section derives (its
+    ``config_derived``, :data:`pipeline.config.DERIVED`, where the checkout has it) and ``skip`` are no settings."""
     hints = typing.get_type_hints(cls)
+    skip = skip | set(getattr(cls, "config_derived", {}))
     total = 0
     for f in dataclasses.fields(cls):
+        if f.name in skip:
+            continue
         section = _section(hints[f.name])
-        total += leaf_keys(section) if section is not None else 1
+        inner = frozenset(p.removeprefix(f"{f.name}.") for p in skip if p.startswith(f"{f.name}."))
+        total += leaf_keys(section, inner) if section is not None else 1
     return total
 
 

@@ -138,7 +138,7 @@ COLUMN_DOCS: dict[str, str] = {
     "outcome_name": "name of the outcome code",
     "firm": "firm-hold label: outcome 5 (still in the hand: the still-held label, exported as ACRONYM's "
     "flex/object_in_gripper) and the object's largest motion in the hand during lift, hold and shake within "
-    "rollouts.lift.firm_translation (5 mm) and firm_rotation (5 degrees); exported as graspgen/firm_hold",
+    "physics.firm_translation (5 mm) and physics.firm_rotation (5 degrees); exported as graspgen/firm_hold",
     "simulated": "false when the pre-filter decided the outcome",
     "decided_in": "rollout phase that decided the outcome (prefilter when not simulated)",
     "steps": "simulated steps",

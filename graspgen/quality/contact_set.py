@@ -9,7 +9,7 @@ The metrics table (:mod:`graspgen.workflows.metrics`) and the robustness copies
   ``torsional_friction`` floor, where the ray casts may see a patch). They are stored in the world frame at the end
   of closing, and the rollouts table does not record where the object was then; they are taken to the object frame
   with the object's settled scene pose. The error is the object's motion between placement and the end of closing:
-  at most ``rollouts.lift.max_target_shift`` / ``max_target_turn`` during the approach (more is labelled a
+  at most ``physics.max_target_shift`` / ``max_target_turn`` during the approach (more is labelled a
   collision), plus the push of the first pad before the second one touches (about the grasp's offset from the
   object's centre line, a few mm). A push along the closing axis moves both patches along their normals, which
   leaves the normal forces' moments unchanged; only the friction edges see it. The robustness stage, which runs its

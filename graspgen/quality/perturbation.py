@@ -39,14 +39,15 @@ x, y, yaw (3), mass scale (1), centre-of-mass offset (3), friction (1). All are 
 
 @dataclasses.dataclass(frozen=True)
 class RobustnessParams:
-    """Settings of the ``robustness`` stage (config section ``robustness``); the protocol is ``rollouts.lift`` and the
-    copies' epsilon follows ``metrics.epsilon``, both in this stage's key."""
+    """Settings of the ``robustness`` stage (config section ``robustness``); the protocol is the rollouts'
+    (``physics``, ``rollouts.protocol``) and the copies' epsilon follows ``metrics.epsilon``, both in this stage's
+    key."""
 
     num_perturbations: int = 20
     """Perturbed copies rolled out per successful grasp."""
     translation_sigma: float = 0.005
     """Standard deviation (m) of the TCP translation error along each TCP axis; compare with the jaws' clearance,
-    ``rollouts.lift.width_margin / 2`` per side: larger errors put a finger on the target (code 1)."""
+    ``physics.table.width_margin / 2`` per side: larger errors put a finger on the target (code 1)."""
     rotation_sigma: float = math.radians(5.0)
     """Standard deviation (rad) of each component of the TCP rotation error (a rotation vector in the TCP frame)."""
     object_noise: bool = False

@@ -137,7 +137,7 @@ class PrefilterParams:
 
     approach_distance: float = 0.05
     """Distance (m, >= 0) of the pre-grasp pose behind the grasp pose, along the TCP's -z (the gripper starts
-    there and moves along +z to the grasp). In a config it must equal ``rollouts.lift.approach_distance``."""
+    there and moves along +z to the grasp). In a config it is the rollouts' ``physics.table.approach_distance``."""
     num_approach_samples: int = 11
     """Poses checked along the approach line, evenly spaced from the pre-grasp pose to the grasp pose (both
     included); 1 checks the grasp pose only. Default: 5 mm spacing over 0.05 m."""

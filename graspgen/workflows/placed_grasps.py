@@ -90,7 +90,7 @@ class PlacedGraspsParams:
     approach_distance: float = 0.0
     """Length (m, >= 0) of the approach line checked behind each grasp pose, along the TCP's -z. 0 (default):
     the grasp pose only, as ACRONYM builds its scenes: the object-level labels come from a hand placed at the grasp
-    with open jaws, so the check asks what the label assumed. Set it to ``rollouts.lift.approach_distance`` (0.05) to
+    with open jaws, so the check asks what the label assumed. Set it to ``physics.table.approach_distance`` (0.05) to
     also demand the table protocol's approach be free (stricter)."""
     approach_step: float = 0.005
     """Spacing (m, > 0) of the poses checked along the approach line (unused when ``approach_distance`` is 0);
@@ -104,8 +104,8 @@ class PlacedGraspsParams:
     """Collision-free placed grasps per scene re-simulated in the scene with ``lift`` (drawn with the task's rng);
     0: off. Measures how often placement without rollouts gets the label wrong (metadata ``rescene``)."""
     lift: LiftParams = dataclasses.field(default_factory=LiftParams)
-    """The scene rollout of ``rescene_check``: the ``table`` protocol (keep it equal to ``rollouts.lift`` to compare
-    with the pipeline's own scene labels)."""
+    """The scene rollout of ``rescene_check``: the ``table`` protocol (in a config it comes from ``physics`` and
+    ``placed_grasps.protocol``, as the rollouts' does, so the labels compare with the pipeline's own)."""
 
     def __post_init__(self) -> None:
         check_number("approach_distance", self.approach_distance, low=0.0)

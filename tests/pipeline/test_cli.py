@@ -80,6 +80,13 @@ def test_config_show_prints_loadable_yaml_with_docs():
     assert yaml.safe_load(result.output)["numbers"]["size"] == 9
 
 
+def test_config_show_prints_what_differs_and_with_all_every_key():
+    differs = yaml.safe_load(invoke("config", "show", "--set", "numbers.size=9").output)
+    every = yaml.safe_load(invoke("config", "show", "--all", "--set", "numbers.size=9").output)
+    assert differs == {"numbers": {"size": 9}}
+    assert every["numbers"]["size"] == 9 and "run" in every and len(every["numbers"]) > 1
+
+
 def test_summary_says_which_stages_ran_side_by_side():
     from rich.console import Console
 

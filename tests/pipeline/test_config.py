@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-from typing import Literal
+from collections.abc import Callable
+from typing import ClassVar, Literal
 
 import pytest
 import yaml
@@ -162,3 +163,48 @@ def test_a_renamed_key_or_value_is_answered_with_its_new_name(override, message)
     with pytest.raises(ConfigError, match=f"^defaults: {message}$"):
         load_config(RenamedRoot, None, [override])
     assert load_config(RenamedRoot, None, ["s.mode=any", "s.count=3"]).s == Renamed(mode="any", count=3)
+
+
+@dataclasses.dataclass(frozen=True)
+class Base:
+    width: float = 0.02
+    """Opening margin (m)."""
+    inner: Inner = dataclasses.field(default_factory=Inner)
+    """A section."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Derived(Base):
+    config_derived: ClassVar[dict[str, str]] = {"width": "top.width", "inner.friction": "top.width"}
+    config_moved: ClassVar[Callable[[str], str | None]] = staticmethod(
+        lambda path: "top.width" if path == "old.width" else None)
+    extra: int = 1
+    """A key the subclass adds."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DerivedRoot:
+    width: float = 0.02
+    """The one opening margin (m)."""
+    s: Derived = dataclasses.field(default_factory=Derived)
+
+
+@pytest.mark.parametrize("override, message", [
+    ("s.width=0.03", "s.width: not a setting: derived from top.width"),
+    ("s.inner.friction=2", "s.inner.friction: not a setting: derived from top.width"),
+    ("s.old.width=0.03", "s.old.width: moved to top.width"),
+])
+def test_a_derived_or_moved_key_names_where_it_comes_from(override, message):
+    with pytest.raises(ConfigError, match=f"^defaults: {message}$"):
+        load_config(DerivedRoot, None, [override])
+    assert load_config(DerivedRoot, None, ["s.inner.mode=above"]).s.inner.mode == "above"
+
+
+def test_to_yaml_leaves_derived_keys_out_and_shows_what_differs():
+    cfg = load_config(DerivedRoot, None, ["s.extra=2"])
+    every = to_yaml(cfg)
+    assert "# A key the subclass adds." in every and "# Opening margin (m)." not in every  # docs of the bases too
+    assert "friction" not in every
+    assert yaml.safe_load(every) == {"width": 0.02, "s": {"inner": {"mode": "above", "sizes": [0.1, 0.2]}, "extra": 2}}
+    assert yaml.safe_load(to_yaml(cfg, defaults=DerivedRoot())) == {"s": {"extra": 2}}
+    assert to_yaml(DerivedRoot(), defaults=DerivedRoot()) == ""

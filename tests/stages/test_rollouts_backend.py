@@ -31,7 +31,7 @@ VERSIONS = {"mujoco-warp": "4.0.0", "warp-lang": "1.19.0"}
 
 def test_the_cpu_backend_keeps_the_keys_of_the_section_before_the_backend_existed():
     stage = stage_module.RolloutsStage()
-    for sets in ([], ["rollouts.simulate_rejected=true", "rollouts.lift.protocol=acronym"],
+    for sets in ([], ["rollouts.simulate_rejected=true", "rollouts.protocol=acronym"],
                  ["rollouts.backend=mujoco", "rollouts.warp.nworld=8"]):  # warp settings unused by mujoco
         config = load_config(Config, None, sets)
         before = canonical_json({"lift": config.rollouts.lift, "simulate_rejected": config.rollouts.simulate_rejected})

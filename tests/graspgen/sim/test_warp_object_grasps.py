@@ -39,9 +39,9 @@ def test_the_cpu_backend_keeps_the_object_grasps_keys():
     stage = stage_module.ObjectGraspsStage()
     for sets in ([], ["object_grasps.protocol=graspdatagen"], ["object_grasps.warp.nworld=8"]):
         config = load_config(Config, None, sets)
-        assert canonical_json(stage.params(config)) == _without_backend(config.object_grasps)
+        assert canonical_json(stage.params(config)) == _without_backend(config.object_grasps.library_params())
     default = load_config(Config, None, []).object_grasps  # the dataset stage hashes the section itself
-    assert canonical_json(default) == _without_backend(default)
+    assert canonical_json(default) == _without_backend(default.library_params())  # overrides: out while unset
 
 
 def test_the_warp_backend_joins_the_object_grasps_key_and_needs_its_extra(monkeypatch):
