@@ -21,9 +21,9 @@ from graspgen.geometry.poses import rotation_angle
 from graspgen.sim.gripper_model import GRIPPER_GEOM_GROUP
 from graspgen.sim.lift_model import StaticCheck, apply_contact_overrides, index_scene, set_grip
 from graspgen.sim.lift_rules import Drift, closing_tolerance, jaw_contacts, live_code, rollout_result
-from graspgen.sim.motion import rollout_schedule
 from graspgen.sim.pad_patch import PatchTorsion
 from graspgen.sim.prefilter import TARGET_TOUCH_DEPTH, touch_allowance
+from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams, RolloutResult
 from graspgen.validation import check_instance
 
@@ -83,8 +83,10 @@ class LiftState:
         """The one :class:`mujoco.MjData` every rollout reuses (after a rollout: its final state)."""
         self._qpos_init = self._initial_qpos(m, qpos)
         self._cache_views()
-        self.schedule = rollout_schedule(params, self._dt, self.min_width, self.max_width, self.closing_speed)
-        """The protocol's motion profiles and step counts (:class:`graspgen.sim.motion.Schedule`)."""
+        self.schedule = protocol_of(params).schedule(params, self._dt, self.min_width, self.max_width,
+                                                     self.closing_speed)
+        """The protocol's motion profiles and step counts (:class:`graspgen.sim.motion.Schedule`, from the
+        protocol's ``schedule``)."""
         self._f6 = np.zeros(6)
         self.steps = 0
         """Steps taken by the current (or last) rollout."""

@@ -30,6 +30,7 @@ import numpy as np
 from graspgen.geometry.poses import quat_mul, rotation_angle
 from graspgen.grippers import jaw_opening
 from graspgen.sim.lift_rules import Drift, both_jaws, jaws_on, no_contacts
+from graspgen.sim.motion import Schedule, base_schedule, shake_quats, shake_wave
 from graspgen.sim.protocols import PROTOCOLS, AcronymParams, GraspDataGenParams, LiftParams, Outcome, RolloutResult
 from graspgen.validation import check_choice
 
@@ -83,6 +84,12 @@ class RolloutProtocol:
         """The grip's load under ``lift`` with gravity ``g`` (m/s^2)."""
         raise NotImplementedError
 
+    def schedule(self, lift: LiftParams, dt: float, min_width: float, max_width: float,
+                 closing_speed: float) -> Schedule:
+        """Every motion profile and step count of the protocol under ``lift`` at timestep ``dt`` (s), for a gripper
+        of pad separation range ``[min_width, max_width]`` (m) whose jaws close at ``closing_speed`` (m/s)."""
+        return base_schedule(lift, dt)
+
     def calm(self, lift: LiftParams) -> LiftParams:
         """``lift`` without the disturbance after closing (no shake), where the protocol has one to switch off."""
         return lift
@@ -107,6 +114,14 @@ class TableProtocol(RolloutProtocol):
 
     def calm(self, lift: LiftParams) -> LiftParams:
         return dataclasses.replace(lift, shake=False)
+
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        s = base_schedule(lift, dt)
+        if not lift.shake:
+            return s
+        return dataclasses.replace(
+            s, shake_z=shake_wave(lift.shake_amplitude, lift.shake_frequency, lift.shake_cycles, dt),
+            shake_qx=shake_quats(lift.shake_angle, lift.shake_frequency, lift.shake_cycles, dt))
 
     @staticmethod
     def approach_check(sim: Any, roles: np.ndarray, target: int, index: int):
@@ -209,6 +224,15 @@ class FreeSpaceProtocol(RolloutProtocol):
     def settings(self, lift: LiftParams) -> AcronymParams | GraspDataGenParams:
         return getattr(lift, self.name)
 
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        """The shared profiles with the protocol's own opening, and a closing timeout of at least 1.25x a full
+        close (from fully open to fully closed takes ``(open - min) / closing_speed``)."""
+        s, free = base_schedule(lift, dt), self.settings(lift)
+        open_width = float(np.clip(max_width if free.open_width is None else free.open_width, min_width, max_width))
+        full_close = 1.25 * (open_width - min_width) / closing_speed
+        return dataclasses.replace(s, open_width=open_width,
+                                   close_max_steps=max(s.close_max_steps, math.ceil(full_close / dt - 1e-9)))
+
     def disturb(self, sim: Any, pos, quat, R, target, check_held, observer) -> None:
         """The disturbance after closing; ``check_held(phase)`` at every check."""
         raise NotImplementedError
@@ -278,6 +302,14 @@ class AcronymProtocol(FreeSpaceProtocol):
     def calm(self, lift: LiftParams) -> LiftParams:
         return dataclasses.replace(lift, acronym=AcronymParams(shake_amplitude=0.0, shake_angle=0.0))
 
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        acr = lift.acronym
+        return dataclasses.replace(
+            super().schedule(lift, dt, min_width, max_width, closing_speed),
+            shake_z=shake_wave(acr.shake_amplitude, acr.shake_frequency, acr.shake_cycles, dt),
+            shake_qx=shake_quats(acr.shake_angle, acr.shake_frequency, acr.shake_cycles, dt),
+            settle_steps=int(round(acr.settle_time / dt)))
+
     def disturb(self, sim, pos, quat, R, target, check_held, observer) -> None:
         acr, s = sim.params.acronym, sim.schedule
         if acr.gravity == "world":
@@ -298,6 +330,11 @@ class GraspDataGenProtocol(FreeSpaceProtocol):
 
     def load(self, lift: LiftParams, g: float) -> Load:
         return Load(lift.graspdatagen.force_scale * g, 0.0, None, 1.0)
+
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        return dataclasses.replace(super().schedule(lift, dt, min_width, max_width, closing_speed),
+                                   tug_steps=max(1, int(round(lift.graspdatagen.tug_time / dt))),
+                                   tug_dirs=lift.graspdatagen.directions())
 
     def disturb(self, sim, pos, quat, R, target, check_held, observer) -> None:
         weight = sim.params.graspdatagen.force_scale * float(sim.model.body_subtreemass[target]) * math.sqrt(

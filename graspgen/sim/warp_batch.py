@@ -2,9 +2,10 @@
 
 Every world follows its own timeline, as its grasp would on the CPU: the protocol's segments before closing (the
 ``table`` protocol's approach: :class:`graspgen.sim.warp_table.TableRun`), closing (until the jaws stop, checked
-every ``check_interval`` steps, or the timeout), then the protocol's disturbance segments (:class:`Segment`), each
-with its own checks every ``check_interval`` of its steps and at its end; a world whose outcome is decided stops
-counting steps and its record is frozen (its world keeps stepping with the others, unobserved, until the batch is
+every ``check_interval`` steps, or the timeout), then the protocol's disturbance segments
+(:class:`graspgen.sim.motion.Segment`), each with its own checks every ``check_interval`` of its steps and at its
+end; a world whose outcome is decided stops counting steps and its record is frozen (its world keeps stepping with
+the others, unobserved, until the batch is
 done). What is read on the CPU (the end of closing, the results) is the CPU backend's own code
 (:class:`graspgen.sim.lift_state.LiftState`, :mod:`graspgen.sim.lift_rules`). :class:`BatchRun` is the free-space
 protocols' machine; its hooks (:meth:`BatchRun._check_before`, ``_held_rule``, ``_end_rule``, ``_lift_gain``)
@@ -23,25 +24,11 @@ from graspgen.errors import SimulationError
 from graspgen.geometry.poses import quat_mul, rotation_angles
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.lift_rules import both_jaws, closing_tolerance, no_contacts, rollout_result
-from graspgen.sim.motion import Schedule
+from graspgen.sim.motion import Schedule, Segment
 from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
 from graspgen.sim.warp_rules import jaws_on, relative_poses
 
-__all__ = ["BatchRun", "Segment", "closing_record", "disturbance_segments", "start_gravity", "unfinished_result"]
-
-class Segment:
-    """One stretch of a protocol (a CPU ``_move`` or ``_wait`` call): ``n`` steps under phase name ``phase``;
-    ``kind`` is ``pos`` (mocap at the grasp plus ``table[k]`` m along the approach axis), ``zpos`` (mocap at the
-    grasp plus ``table[k]`` m along world z), ``quat`` (mocap at the grasp plus ``lift`` m along world z, turned by
-    the quaternion ``table[k]``), ``wait`` (targets unchanged) or ``tug`` (a wait with the object pulled by its
-    weight along the TCP-frame direction ``table (3,)``). ``mark``: the object's world pose is taken when the
-    segment starts (the reference of ``motion_shaking_*``)."""
-
-    def __init__(self, phase: str, n: int, kind: str, table: np.ndarray | None = None, *, lift: float = 0.0,
-                 mark: bool = False) -> None:
-        self.phase, self.n, self.kind, self.table = phase, int(n), kind, table
-        self.lift, self.mark = float(lift), bool(mark)
-
+__all__ = ["BatchRun", "closing_record", "disturbance_segments", "start_gravity", "unfinished_result"]
 
 def disturbance_segments(params: LiftParams, schedule: Schedule) -> list[Segment]:
     """The protocol's disturbance (the CPU backend's ``disturb`` of :mod:`graspgen.sim.protocol_phases`; ``table``:
