@@ -30,7 +30,7 @@ import numpy as np
 from graspgen.geometry.poses import quat_mul, rotation_angle
 from graspgen.grippers import jaw_opening
 from graspgen.sim.lift_rules import Drift, both_jaws, jaws_on, no_contacts
-from graspgen.sim.motion import Schedule, base_schedule, shake_quats, shake_wave
+from graspgen.sim.motion import Schedule, Segment, base_schedule, shake_quats, shake_wave
 from graspgen.sim.protocols import PROTOCOLS, AcronymParams, GraspDataGenParams, LiftParams, Outcome, RolloutResult
 from graspgen.validation import check_choice
 
@@ -90,6 +90,16 @@ class RolloutProtocol:
         of pad separation range ``[min_width, max_width]`` (m) whose jaws close at ``closing_speed`` (m/s)."""
         return base_schedule(lift, dt)
 
+    def segments(self, lift: LiftParams, schedule: Schedule) -> list[Segment]:
+        """What :meth:`rollout` does after closing, as the segments the MuJoCo Warp backend replays
+        (:class:`graspgen.sim.warp_batch.BatchRun`); ``schedule``: :meth:`schedule`'s."""
+        raise NotImplementedError
+
+    def start_gravity(self, lift: LiftParams, gravity: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Gravity (3,) m/s^2 from the end of closing on, for the scene's ``gravity (3,)`` and the grasp's rotation
+        ``R (3, 3)`` (a new array)."""
+        return gravity.copy()
+
     def calm(self, lift: LiftParams) -> LiftParams:
         """``lift`` without the disturbance after closing (no shake), where the protocol has one to switch off."""
         return lift
@@ -122,6 +132,17 @@ class TableProtocol(RolloutProtocol):
         return dataclasses.replace(
             s, shake_z=shake_wave(lift.shake_amplitude, lift.shake_frequency, lift.shake_cycles, dt),
             shake_qx=shake_quats(lift.shake_angle, lift.shake_frequency, lift.shake_cycles, dt))
+
+    def segments(self, lift, schedule) -> list[Segment]:
+        """Lift, hold and :meth:`shake`."""
+        s = schedule
+        top = float(s.lift_offsets[-1, 2])
+        segments = [Segment("lifting", len(s.lift_offsets), "zpos", s.lift_offsets[:, 2]),
+                    Segment("holding", s.hold_steps, "wait")]
+        if lift.shake:
+            segments += [Segment("shaking", len(s.shake_z), "zpos", top + s.shake_z, mark=True),
+                         Segment("shaking", len(s.shake_qx), "quat", s.shake_qx, lift=top)]
+        return segments
 
     @staticmethod
     def approach_check(sim: Any, roles: np.ndarray, target: int, index: int):
@@ -179,7 +200,7 @@ class TableProtocol(RolloutProtocol):
             closed_width, motion_closing, pose_closed, contacts = sim._closing(target, roles, observer)
             if not both_jaws(contacts):
                 raise Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
-            sim._gravity_view[:] = sim.gravity
+            sim._gravity_view[:] = self.start_gravity(p, sim.gravity, R)
             # lift, hold, shake
             rel_p0, rel_R0 = sim.relative(target)
             drift = Drift(rel_p0, rel_R0)
@@ -233,8 +254,12 @@ class FreeSpaceProtocol(RolloutProtocol):
         return dataclasses.replace(s, open_width=open_width,
                                    close_max_steps=max(s.close_max_steps, math.ceil(full_close / dt - 1e-9)))
 
+    def start_gravity(self, lift, gravity, R) -> np.ndarray:
+        """Off (the free-space protocols' gravity stays off unless theirs says otherwise)."""
+        return np.zeros(3)
+
     def disturb(self, sim: Any, pos, quat, R, target, check_held, observer) -> None:
-        """The disturbance after closing; ``check_held(phase)`` at every check."""
+        """The disturbance after closing, under :meth:`start_gravity`; ``check_held(phase)`` at every check."""
         raise NotImplementedError
 
     def rollout(self, sim, pos, quat, R, width, target, roles, index, observer) -> RolloutResult:
@@ -268,6 +293,7 @@ class FreeSpaceProtocol(RolloutProtocol):
 
             # the protocol's disturbance, then the judge
             shake_mark = sim.mark(target)
+            sim._gravity_view[:] = self.start_gravity(sim.params, sim.gravity, R)
             self.disturb(sim, pos, quat, R, target, check_held, observer)
             if not all(jaws_on(sim.data, side, roles)):
                 raise Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
@@ -310,12 +336,23 @@ class AcronymProtocol(FreeSpaceProtocol):
             shake_qx=shake_quats(acr.shake_angle, acr.shake_frequency, acr.shake_cycles, dt),
             settle_steps=int(round(acr.settle_time / dt)))
 
+    def segments(self, lift, schedule) -> list[Segment]:
+        s = schedule
+        return [Segment("shaking", len(s.shake_z), "pos", s.shake_z, mark=True),
+                Segment("shaking", len(s.shake_qx), "quat", s.shake_qx),
+                Segment("holding", s.settle_steps, "wait")]
+
+    def start_gravity(self, lift, gravity, R) -> np.ndarray:
+        """As ``acronym.gravity`` says: the scene's (``world``), its magnitude along the approach (``approach``),
+        or off."""
+        if lift.acronym.gravity == "world":
+            return gravity.copy()
+        if lift.acronym.gravity == "approach":
+            return math.sqrt(float(gravity @ gravity)) * R[:, 2]
+        return np.zeros(3)
+
     def disturb(self, sim, pos, quat, R, target, check_held, observer) -> None:
-        acr, s = sim.params.acronym, sim.schedule
-        if acr.gravity == "world":
-            sim._gravity_view[:] = sim.gravity
-        elif acr.gravity == "approach":
-            sim._gravity_view[:] = math.sqrt(float(sim.gravity @ sim.gravity)) * R[:, 2]
+        s = sim.schedule
         sim._move(pos + s.shake_z[:, None] * R[:, 2], None, "shaking", check_held, observer)
         sim._move(np.repeat(pos[None], len(s.shake_qx), axis=0), quat_mul(quat, s.shake_qx),
                   "shaking", check_held, observer)
@@ -335,6 +372,10 @@ class GraspDataGenProtocol(FreeSpaceProtocol):
         return dataclasses.replace(super().schedule(lift, dt, min_width, max_width, closing_speed),
                                    tug_steps=max(1, int(round(lift.graspdatagen.tug_time / dt))),
                                    tug_dirs=lift.graspdatagen.directions())
+
+    def segments(self, lift, schedule) -> list[Segment]:
+        """One tug per direction."""
+        return [Segment("shaking", schedule.tug_steps, "tug", d, mark=i == 0) for i, d in enumerate(schedule.tug_dirs)]
 
     def disturb(self, sim, pos, quat, R, target, check_held, observer) -> None:
         weight = sim.params.graspdatagen.force_scale * float(sim.model.body_subtreemass[target]) * math.sqrt(

@@ -43,7 +43,7 @@ from graspgen.errors import MissingDependencyError, SettingsError, SimulationErr
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.poses_mj import pos_quat
 from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
-from graspgen.sim.warp_batch import BatchRun, disturbance_segments, unfinished_result
+from graspgen.sim.warp_batch import BatchRun, unfinished_result
 from graspgen.sim.warp_table import TableRun, table_placement
 from graspgen.validation import check, check_instance, check_int
 from shared_utils.keys import KEY_OMIT_DEFAULT  # the flag of the settings added with this backend (re-exported)
@@ -184,8 +184,10 @@ class WarpLiftSimulator:
                 self.device_model.geom_friction = self.world_friction
         self.naconmax = int(self.device_data.contact.geom.shape[0])
         """Contacts allocated for the whole batch."""
-        self.segments = disturbance_segments(params, cpu.schedule)
-        """The protocol's disturbance as :class:`graspgen.sim.warp_batch.Segment` s."""
+        self.protocol = cpu.protocol
+        """The protocol object (:mod:`graspgen.sim.protocol_phases`)."""
+        self.segments = self.protocol.segments(params, cpu.schedule)
+        """The protocol's disturbance as :class:`graspgen.sim.motion.Segment` s."""
         self.timings = {"placement_s": 0.0, "batches_s": 0.0, "closing_record_s": 0.0}
         """Wall seconds (benchmarks): the placements on the CPU, the batches (all of them), and within those the
         end-of-closing records on the CPU, summed over :meth:`rollouts` calls."""

@@ -24,43 +24,11 @@ from graspgen.errors import SimulationError
 from graspgen.geometry.poses import quat_mul, rotation_angles
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.lift_rules import both_jaws, closing_tolerance, no_contacts, rollout_result
-from graspgen.sim.motion import Schedule, Segment
-from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
+from graspgen.sim.motion import Segment
+from graspgen.sim.protocols import Outcome, RolloutResult
 from graspgen.sim.warp_rules import jaws_on, relative_poses
 
-__all__ = ["BatchRun", "closing_record", "disturbance_segments", "start_gravity", "unfinished_result"]
-
-def disturbance_segments(params: LiftParams, schedule: Schedule) -> list[Segment]:
-    """The protocol's disturbance (the CPU backend's ``disturb`` of :mod:`graspgen.sim.protocol_phases`; ``table``:
-    lift, hold and ``TableProtocol.shake``) as segments."""
-    s = schedule
-    if params.protocol == "table":
-        top = float(s.lift_offsets[-1, 2])
-        segments = [Segment("lifting", len(s.lift_offsets), "zpos", s.lift_offsets[:, 2]),
-                    Segment("holding", s.hold_steps, "wait")]
-        if params.shake:
-            segments += [Segment("shaking", len(s.shake_z), "zpos", top + s.shake_z, mark=True),
-                         Segment("shaking", len(s.shake_qx), "quat", s.shake_qx, lift=top)]
-        return segments
-    if params.protocol == "acronym":
-        return [Segment("shaking", len(s.shake_z), "pos", s.shake_z, mark=True),
-                Segment("shaking", len(s.shake_qx), "quat", s.shake_qx),
-                Segment("holding", s.settle_steps, "wait")]
-    return [Segment("shaking", s.tug_steps, "tug", d, mark=i == 0) for i, d in enumerate(s.tug_dirs)]
-
-
-def start_gravity(cpu: LiftSimulator, R: np.ndarray) -> np.ndarray:
-    """Gravity (3,) of a world once its closing ended, for the grasp's rotation ``R (3, 3)``
-    (:meth:`graspgen.sim.protocol_phases.AcronymProtocol.disturb`; ``graspdatagen``: off; ``table``: the scene's)."""
-    if cpu.params.protocol == "table":
-        return cpu.gravity.copy()
-    if cpu.params.protocol == "acronym":
-        if cpu.params.acronym.gravity == "world":
-            return cpu.gravity.copy()
-        if cpu.params.acronym.gravity == "approach":
-            return math.sqrt(float(cpu.gravity @ cpu.gravity)) * R[:, 2]
-    return np.zeros(3)
-
+__all__ = ["BatchRun", "closing_record", "unfinished_result"]
 
 def unfinished_result(cpu: LiftSimulator, code: Outcome, phase: str, steps: int, contacts=None,
                       closing=None) -> RolloutResult:
@@ -341,7 +309,7 @@ class BatchRun:
             self.seg[i] = self.done_seg
             return
         self.rel0_p[i], self.rel0_R[i] = p[i], R[i]
-        self.gravity[i] = start_gravity(self.sim.cpu, self.R[i])
+        self.gravity[i] = self.sim.protocol.start_gravity(self.sim.params, self.sim.cpu.gravity, self.R[i])
         self.forces_changed = True
         self.seg[i], self.k[i] = self.C, 0
         self._advance(i, a)
