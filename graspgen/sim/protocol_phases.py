@@ -70,6 +70,11 @@ class RolloutProtocol:
     free_space: ClassVar[bool]
     """Runs in free space: the hand placed at the grasp with its jaws at the protocol's own opening, gravity the
     protocol's; needs no support (a support would be in the way). False: approach and lift on a support."""
+    placement: ClassVar[str]
+    """How the hand is placed, the kind of rollout the MuJoCo Warp backend runs for the protocol
+    (:data:`graspgen.sim.warp_backend.WARP_RUNS`): ``"pregrasp"``, back along the approach with the jaws open to the
+    grasp's width plus ``width_margin``, then the approach (needs each grasp's width); ``"grasp"``, at the grasp
+    with the jaws at the protocol's own opening (the width is ignored)."""
 
     @property
     def lifts(self) -> bool:
@@ -83,6 +88,12 @@ class RolloutProtocol:
     def load(self, lift: LiftParams, g: float) -> Load:
         """The grip's load under ``lift`` with gravity ``g`` (m/s^2)."""
         raise NotImplementedError
+
+    def contact_overrides(self, lift: LiftParams) -> AcronymParams | None:
+        """The contact settings the protocol writes into the gripper's geoms (``contact_solref``,
+        ``contact_solimp``, ``torsional_friction``: :func:`graspgen.sim.lift_model.apply_contact_overrides`; an
+        explicit torsional friction replaces the ``"patch"`` pad torsion); None: the models' own."""
+        return None
 
     def schedule(self, lift: LiftParams, dt: float, min_width: float, max_width: float,
                  closing_speed: float) -> Schedule:
@@ -116,6 +127,7 @@ class TableProtocol(RolloutProtocol):
 
     name = "table"
     free_space = False
+    placement = "pregrasp"
 
     def load(self, lift: LiftParams, g: float) -> Load:
         shake = (lift.shake_amplitude, lift.shake_angle, lift.shake_frequency, lift.shake_cycles) if lift.shake \
@@ -241,6 +253,7 @@ class FreeSpaceProtocol(RolloutProtocol):
     :meth:`disturb` tests the grip (the protocol's own part); success when both jaws still touch the target."""
 
     free_space = True
+    placement = "grasp"
 
     def settings(self, lift: LiftParams) -> AcronymParams | GraspDataGenParams:
         return getattr(lift, self.name)
@@ -327,6 +340,9 @@ class AcronymProtocol(FreeSpaceProtocol):
 
     def calm(self, lift: LiftParams) -> LiftParams:
         return dataclasses.replace(lift, acronym=AcronymParams(shake_amplitude=0.0, shake_angle=0.0))
+
+    def contact_overrides(self, lift: LiftParams) -> AcronymParams:
+        return lift.acronym
 
     def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
         acr = lift.acronym

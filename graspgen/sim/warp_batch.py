@@ -28,7 +28,7 @@ from graspgen.sim.motion import Segment
 from graspgen.sim.protocols import Outcome, RolloutResult
 from graspgen.sim.warp_rules import jaws_on, relative_poses
 
-__all__ = ["BatchRun", "closing_record", "unfinished_result"]
+__all__ = ["BatchRun", "closing_record", "free_placement", "unfinished_result"]
 
 def unfinished_result(cpu: LiftSimulator, code: Outcome, phase: str, steps: int, contacts=None,
                       closing=None) -> RolloutResult:
@@ -38,6 +38,20 @@ def unfinished_result(cpu: LiftSimulator, code: Outcome, phase: str, steps: int,
     closed_width, motion, pose = closing if closing is not None else (nan, (nan, nan), np.full((4, 4), nan))
     return rollout_result(cpu.params, code, phase, steps, cpu.schedule.dt, closed_width, nan, (nan, nan),
                           no_contacts() if contacts is None else contacts, motion, (nan, nan), pose, (nan, nan))
+
+
+def free_placement(cpu: LiftSimulator, pose: np.ndarray, pos: np.ndarray, quat: np.ndarray, width: float | None,
+                   target: int, roles: np.ndarray) -> dict | RolloutResult:
+    """The free-space protocols' placement on the CPU (``FreeSpaceProtocol.rollout``'s, gravity off): a result when
+    the hand at the grasp pose ``pose (4, 4)`` (``pos (3,)``, ``quat (4,)``), open to the protocol's opening,
+    touches anything (the target with no allowance), else the world's start state; ``width`` is ignored."""
+    cpu.place(pos, quat, cpu.schedule.open_width)
+    code = cpu.contact_code(roles, target, cpu.strict_allowance)
+    if code is not None:
+        return unfinished_result(cpu, Outcome(code), "placement", 0)
+    d = cpu.data
+    return {"pos": pos, "quat": quat, "R": pose[:3, :3].copy(), "qpos": d.qpos.copy(), "ctrl": d.ctrl.copy(),
+            "mark": cpu.mark(target), "target": target, "roles": roles}
 
 
 def closing_record(cpu: LiftSimulator, world: int, state: dict, target: int, roles: np.ndarray, arrays: dict,
