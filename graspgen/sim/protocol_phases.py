@@ -2,15 +2,16 @@
 
 :class:`LiftSimulator.rollout <graspgen.sim.lift.LiftSimulator>` asks the protocol of its ``params``
 (:func:`protocol_of`) to run a grasp; the rules of each phase are written out in :class:`LiftSimulator`'s docstring
-and the settings in :mod:`graspgen.sim.protocols`. What code outside the simulator needs to know of a protocol is
-an attribute here (:attr:`RolloutProtocol.free_space`, :attr:`~RolloutProtocol.lifts`,
-:meth:`~RolloutProtocol.settings`, :meth:`~RolloutProtocol.load`, :meth:`~RolloutProtocol.calm`), never a test of
-its name.
+and the settings in :mod:`graspgen.sim.protocols`. Everything the simulator, the MuJoCo Warp backend and code outside
+the simulator need to know of a protocol is a method or attribute of its class (the interface:
+:class:`graspgen.sim.protocol_base.RolloutProtocol`), never a test of its name: its phases, motion schedule, contact
+overrides, Warp placement kind, segments and gravity, and its ``free_space``, ``lifts``, ``settings``, ``load`` and
+``calm``.
 
 Adding a protocol: its settings in :class:`graspgen.sim.protocols.LiftParams` (and its name in
 :data:`~graspgen.sim.protocols.PROTOCOLS`), a subclass of :class:`RolloutProtocol` (or of :class:`FreeSpaceProtocol`,
-whose frame places, closes and judges, with :meth:`~FreeSpaceProtocol.disturb` its own) and one entry in
-:data:`ROLLOUT_PROTOCOLS`.
+whose frame places, closes and judges, with :meth:`~FreeSpaceProtocol.disturb`, :meth:`~RolloutProtocol.segments`
+and its schedule its own) and one entry in :data:`ROLLOUT_PROTOCOLS`.
 
 Each phase method takes the simulator (``sim``, a :class:`~graspgen.sim.lift.LiftSimulator`; not imported here, so
 that the model set-up and the motion profiles below it can ask a protocol too) and works on its state; a rule that
@@ -21,9 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -31,95 +31,12 @@ from graspgen.geometry.poses import quat_mul, rotation_angle
 from graspgen.grippers import jaw_opening
 from graspgen.sim.lift_rules import Drift, both_jaws, jaws_on, no_contacts
 from graspgen.sim.motion import Schedule, Segment, base_schedule, shake_quats, shake_wave
+from graspgen.sim.protocol_base import Decided, Load, RolloutProtocol
 from graspgen.sim.protocols import PROTOCOLS, AcronymParams, GraspDataGenParams, LiftParams, Outcome, RolloutResult
 from graspgen.validation import check_choice
 
 __all__ = ["ROLLOUT_PROTOCOLS", "AcronymProtocol", "Decided", "FreeSpaceProtocol", "GraspDataGenProtocol", "Load",
            "RolloutProtocol", "TableProtocol", "protocol_of"]
-
-
-class Decided(Exception):
-    """A rule fired: carries the outcome code and the phase."""
-
-    def __init__(self, code: int, phase: str) -> None:
-        super().__init__(code, phase)
-        self.code = code
-        self.phase = phase
-
-
-@dataclass(frozen=True)
-class Load:
-    """What a protocol asks of a grip after closing, for the analytic thresholds
-    (:func:`graspgen.quality.mechanics_theory.shake_profiles`)."""
-
-    gravity: float
-    """Acceleration (m/s^2) the grip carries at rest along the approach: gravity, or the tug's."""
-    lift_acceleration: float
-    """Peak acceleration (m/s^2) of the lift on top of it (0: nothing is lifted)."""
-    shake: tuple[float, float, float, int] | None
-    """``(amplitude m, angle rad, frequency Hz, cycles)`` of the linear then angular shake; None: no shake."""
-    shake_sign: float
-    """+1: the linear shake's acceleration adds to the load as world z does (table: up); -1: along +approach."""
-
-
-class RolloutProtocol:
-    """A protocol: its phases (``rollout`` runs them) and what the outside needs to know of it."""
-
-    name: ClassVar[str]
-    """The protocol's name (:data:`graspgen.sim.protocols.PROTOCOLS`)."""
-    free_space: ClassVar[bool]
-    """Runs in free space: the hand placed at the grasp with its jaws at the protocol's own opening, gravity the
-    protocol's; needs no support (a support would be in the way). False: approach and lift on a support."""
-    placement: ClassVar[str]
-    """How the hand is placed, the kind of rollout the MuJoCo Warp backend runs for the protocol
-    (:data:`graspgen.sim.warp_backend.WARP_RUNS`): ``"pregrasp"``, back along the approach with the jaws open to the
-    grasp's width plus ``width_margin``, then the approach (needs each grasp's width); ``"grasp"``, at the grasp
-    with the jaws at the protocol's own opening (the width is ignored)."""
-
-    @property
-    def lifts(self) -> bool:
-        """Lifts the object (the hand rises ``lift_height``)."""
-        return not self.free_space
-
-    def settings(self, lift: LiftParams) -> AcronymParams | GraspDataGenParams | None:
-        """The protocol's own settings block of ``lift`` (None: ``LiftParams``' own fields)."""
-        return None
-
-    def load(self, lift: LiftParams, g: float) -> Load:
-        """The grip's load under ``lift`` with gravity ``g`` (m/s^2)."""
-        raise NotImplementedError
-
-    def contact_overrides(self, lift: LiftParams) -> AcronymParams | None:
-        """The contact settings the protocol writes into the gripper's geoms (``contact_solref``,
-        ``contact_solimp``, ``torsional_friction``: :func:`graspgen.sim.lift_model.apply_contact_overrides`; an
-        explicit torsional friction replaces the ``"patch"`` pad torsion); None: the models' own."""
-        return None
-
-    def schedule(self, lift: LiftParams, dt: float, min_width: float, max_width: float,
-                 closing_speed: float) -> Schedule:
-        """Every motion profile and step count of the protocol under ``lift`` at timestep ``dt`` (s), for a gripper
-        of pad separation range ``[min_width, max_width]`` (m) whose jaws close at ``closing_speed`` (m/s)."""
-        return base_schedule(lift, dt)
-
-    def segments(self, lift: LiftParams, schedule: Schedule) -> list[Segment]:
-        """What :meth:`rollout` does after closing, as the segments the MuJoCo Warp backend replays
-        (:class:`graspgen.sim.warp_batch.BatchRun`); ``schedule``: :meth:`schedule`'s."""
-        raise NotImplementedError
-
-    def start_gravity(self, lift: LiftParams, gravity: np.ndarray, R: np.ndarray) -> np.ndarray:
-        """Gravity (3,) m/s^2 from the end of closing on, for the scene's ``gravity (3,)`` and the grasp's rotation
-        ``R (3, 3)`` (a new array)."""
-        return gravity.copy()
-
-    def calm(self, lift: LiftParams) -> LiftParams:
-        """``lift`` without the disturbance after closing (no shake), where the protocol has one to switch off."""
-        return lift
-
-    def rollout(self, sim: Any, pos: np.ndarray, quat: np.ndarray, R: np.ndarray, width: float,
-                target: int, roles: np.ndarray, index: int, observer) -> RolloutResult:
-        """Run the phases on ``sim`` for the grasp at ``pos (3,)``, ``quat (4,)``, ``R (3, 3)`` of pad separation
-        ``width`` (m) on body ``target`` (``roles``, ``index``: :meth:`LiftSimulator.target_roles`)."""
-        raise NotImplementedError
 
 
 class TableProtocol(RolloutProtocol):
