@@ -57,12 +57,13 @@ __all__ = ["KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WARP_RUNS", "WarpLiftSimulator
 
 @dataclass(frozen=True)
 class WarpRun:
-    """How the warp backend rolls out one kind of placement (:attr:`graspgen.sim.protocol_phases.RolloutProtocol.
+    """How the warp backend rolls out one kind of placement (:attr:`graspgen.sim.protocol_base.RolloutProtocol.
     placement`)."""
 
     place: Callable[..., dict | RolloutResult]
     """``place(cpu, pose, pos, quat, width, target, roles)``: the placement on the CPU, gravity off; a result when
-    it decides the grasp, else the world's start state (:func:`graspgen.sim.warp_table.table_placement`)."""
+    it decides the grasp, else the world's start state (:func:`graspgen.sim.warp_table.table_placement`,
+    :func:`graspgen.sim.warp_batch.free_placement`)."""
     batch: type[BatchRun]
     """The batch machine (:class:`graspgen.sim.warp_batch.BatchRun` or a subclass)."""
     widths: bool

@@ -5,11 +5,11 @@ Every world follows its own timeline, as its grasp would on the CPU: the protoco
 every ``check_interval`` steps, or the timeout), then the protocol's disturbance segments
 (:class:`graspgen.sim.motion.Segment`), each with its own checks every ``check_interval`` of its steps and at its
 end; a world whose outcome is decided stops counting steps and its record is frozen (its world keeps stepping with
-the others, unobserved, until the batch is
-done). What is read on the CPU (the end of closing, the results) is the CPU backend's own code
-(:class:`graspgen.sim.lift_state.LiftState`, :mod:`graspgen.sim.lift_rules`). :class:`BatchRun` is the free-space
-protocols' machine; its hooks (:meth:`BatchRun._check_before`, ``_held_rule``, ``_end_rule``, ``_lift_gain``)
-are what the ``table`` protocol replaces.
+the others, unobserved, until the batch is done). What is read on the CPU (the end of closing, the results) is the
+CPU backend's own code (:class:`graspgen.sim.lift_state.LiftState`, :mod:`graspgen.sim.lift_rules`). :class:`BatchRun`
+is the machine of the protocols placed at the grasp (``placement`` ``"grasp"``, placed by :func:`free_placement`);
+its hooks (:meth:`BatchRun._check_before`, ``_held_rule``, ``_end_rule``, ``_lift_gain``) are what the
+``"pregrasp"`` placement's machine (``table``) replaces.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from graspgen.sim.protocols import Outcome, RolloutResult
 from graspgen.sim.warp_rules import jaws_on, relative_poses
 
 __all__ = ["BatchRun", "closing_record", "free_placement", "unfinished_result"]
+
 
 def unfinished_result(cpu: LiftSimulator, code: Outcome, phase: str, steps: int, contacts=None,
                       closing=None) -> RolloutResult:
