@@ -174,8 +174,9 @@ def set_grip(m: mujoco.MjModel, params: LiftParams, index: LiftIndex) -> tuple[f
 
 
 def apply_contact_overrides(m: mujoco.MjModel, acr: AcronymParams, index: LiftIndex, prefix: str) -> None:
-    """Write the ``acronym`` protocol's contact settings (solref, solimp, torsional friction) into ``m``'s gripper
-    geoms (by role and name); the ones left None keep the models'."""
+    """Write a protocol's contact settings (solref, solimp, torsional friction: ``acr``, the ``acronym`` protocol's
+    block, :meth:`~graspgen.sim.protocol_phases.RolloutProtocol.contact_overrides`) into ``m``'s gripper geoms (by
+    role and name); the ones left None keep the models'."""
     grip = np.flatnonzero(index.geom_is_gripper)
     if acr.contact_solref is not None:
         m.geom_solref[grip] = acr.contact_solref

@@ -21,9 +21,9 @@ from graspgen.geometry.poses import rotation_angle
 from graspgen.sim.gripper_model import GRIPPER_GEOM_GROUP
 from graspgen.sim.lift_model import StaticCheck, apply_contact_overrides, index_scene, set_grip
 from graspgen.sim.lift_rules import Drift, closing_tolerance, jaw_contacts, live_code, rollout_result
-from graspgen.sim.motion import rollout_schedule
 from graspgen.sim.pad_patch import PatchTorsion
 from graspgen.sim.prefilter import TARGET_TOUCH_DEPTH, touch_allowance
+from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams, RolloutResult
 from graspgen.validation import check_instance
 
@@ -66,25 +66,29 @@ class LiftState:
         """Names of the movable object bodies (possible targets)."""
         self._roles: dict[str, tuple[int, np.ndarray, int]] = {}
         # The static check's private model (_static_code): the scene as it stood, the gripper as commanded; copied
-        # before the acronym protocol's contact overrides, as it always was.
+        # before the protocol's contact overrides, as it always was.
         self._static = StaticCheck(m, ix)
         self._shift2 = params.max_target_shift ** 2
         self._cos_half_turn = math.cos(min(params.max_target_turn, math.pi) / 2.0)
         self._slip2 = params.slip_tolerance ** 2
         self._cos_slip = math.cos(min(params.slip_rotation_tolerance, math.pi))
-        if params.protocol == "acronym":
-            apply_contact_overrides(m, params.acronym, ix, prefix)
-        explicit = params.protocol == "acronym" and params.acronym.torsional_friction is not None
+        overrides = protocol_of(params).contact_overrides(params)
+        if overrides is not None:
+            apply_contact_overrides(m, overrides, ix, prefix)
+        explicit = overrides is not None and overrides.torsional_friction is not None
         self.pad_patch = None if params.pad_torsion == "face" or explicit else PatchTorsion(
             m, prefix, ~ix.geom_is_gripper & ~ix.geom_static, GRIPPER_GEOM_GROUP)
         """The ``"patch"`` pad-torsion model (:mod:`graspgen.sim.pad_patch`); None with ``"face"`` or an explicit
-        ``acronym.torsional_friction``, which then holds for every contact."""
+        torsional friction in the protocol's contact overrides (``acronym.torsional_friction``), which then holds
+        for every contact."""
         self.data = mujoco.MjData(m)
         """The one :class:`mujoco.MjData` every rollout reuses (after a rollout: its final state)."""
         self._qpos_init = self._initial_qpos(m, qpos)
         self._cache_views()
-        self.schedule = rollout_schedule(params, self._dt, self.min_width, self.max_width, self.closing_speed)
-        """The protocol's motion profiles and step counts (:class:`graspgen.sim.motion.Schedule`)."""
+        self.schedule = protocol_of(params).schedule(params, self._dt, self.min_width, self.max_width,
+                                                     self.closing_speed)
+        """The protocol's motion profiles and step counts (:class:`graspgen.sim.motion.Schedule`, from the
+        protocol's ``schedule``)."""
         self._f6 = np.zeros(6)
         self.steps = 0
         """Steps taken by the current (or last) rollout."""

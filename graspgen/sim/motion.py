@@ -3,8 +3,10 @@
 A profile is sampled at the end of each simulation step, so a rollout writes one row per step into the mocap
 target: :func:`trapezoid` (the approach and the lift: rest to rest), :func:`shake_wave` (ACRONYM's shake: a sine
 under a Hann window, starting and ending at rest) and :func:`shake_quats` (the rotational shake as quaternions).
-:func:`rollout_schedule` turns a :class:`graspgen.sim.protocols.LiftParams` into every profile and step count one
-:class:`graspgen.sim.lift.LiftSimulator` uses (and the MuJoCo Warp backend replays).
+:func:`base_schedule` turns a :class:`graspgen.sim.protocols.LiftParams` into the profiles and step counts every
+protocol shares; each protocol's ``schedule`` (:mod:`graspgen.sim.protocol_phases`) adds its own, into the
+:class:`Schedule` one :class:`graspgen.sim.lift.LiftSimulator` uses, and its ``segments`` cut it into the
+:class:`Segment` s the MuJoCo Warp backend replays.
 """
 
 from __future__ import annotations
@@ -14,10 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams
 
-__all__ = ["Schedule", "rollout_schedule", "shake_quats", "shake_wave", "trapezoid"]
+__all__ = ["Schedule", "Segment", "base_schedule", "shake_quats", "shake_wave", "trapezoid"]
 
 
 def trapezoid(distance: float, speed: float, accel: float, dt: float) -> np.ndarray:
@@ -96,7 +97,8 @@ def shake_quats(angle: float, frequency: float, cycles: int, dt: float) -> np.nd
 
 @dataclass(frozen=True, eq=False)
 class Schedule:
-    """The profiles and step counts of one protocol at one timestep (:func:`rollout_schedule`)."""
+    """The profiles and step counts of one protocol at one timestep (:func:`base_schedule` and the
+    protocol's ``schedule``)."""
 
     dt: float
     """Timestep (s)."""
@@ -122,50 +124,30 @@ class Schedule:
     """``(5, 3)`` unit tug directions in the TCP frame (``graspdatagen``; :meth:`GraspDataGenParams.directions`)."""
 
 
-def rollout_schedule(params: LiftParams, dt: float, min_width: float, max_width: float,
-                     closing_speed: float) -> Schedule:
-    """Every profile and step count of ``params``' protocol.
-
-    Parameters
-    ----------
-    params : LiftParams
-        The protocol and its settings.
-    dt : float
-        Timestep, s.
-    min_width, max_width : float
-        The gripper's pad separation range, m.
-    closing_speed : float
-        Width rate (m/s) of the closing jaws (after the protocol's grip settings).
-
-    Returns
-    -------
-    Schedule
-    """
+def base_schedule(params: LiftParams, dt: float) -> Schedule:
+    """The profiles and step counts every protocol's schedule starts from: the approach, the lift, the hold and the
+    closing timeout of ``params`` at timestep ``dt`` (s), no shake, no opening of its own. A protocol's
+    ``schedule`` (:meth:`graspgen.sim.protocol_phases.RolloutProtocol.schedule`) adds its own parts."""
     approach = trapezoid(params.approach_distance, params.approach_speed, params.approach_acceleration, dt)
     lift_s = trapezoid(params.lift_height, params.lift_speed, params.lift_acceleration, dt)
     lift_offsets = np.zeros((len(lift_s), 3))
     lift_offsets[:, 2] = lift_s
     hold_steps = int(round(params.hold_time / dt))
     close_max_steps = max(1, math.ceil(params.close_timeout / dt - 1e-9))
-    shake_z = shake_qx = open_width = tug_dirs = None
-    settle_steps = tug_steps = 0
-    if params.shake:
-        shake_z = shake_wave(params.shake_amplitude, params.shake_frequency, params.shake_cycles, dt)
-        shake_qx = shake_quats(params.shake_angle, params.shake_frequency, params.shake_cycles, dt)
-    free = protocol_of(params).settings(params)
-    if free is not None:  # a free-space protocol: its own opening
-        open_width = float(np.clip(max_width if free.open_width is None else free.open_width, min_width, max_width))
-        # From fully open to fully closed takes (open - min) / closing_speed: never stop closing before that.
-        full_close = 1.25 * (open_width - min_width) / closing_speed
-        close_max_steps = max(close_max_steps, math.ceil(full_close / dt - 1e-9))
-    if params.protocol == "graspdatagen":
-        tug_steps = max(1, int(round(params.graspdatagen.tug_time / dt)))
-        tug_dirs = params.graspdatagen.directions()
-    if params.protocol == "acronym":
-        acr = params.acronym
-        shake_z = shake_wave(acr.shake_amplitude, acr.shake_frequency, acr.shake_cycles, dt)
-        shake_qx = shake_quats(acr.shake_angle, acr.shake_frequency, acr.shake_cycles, dt)
-        settle_steps = int(round(acr.settle_time / dt))
     return Schedule(dt=dt, approach=approach, lift_offsets=lift_offsets, hold_steps=hold_steps,
-                    close_max_steps=close_max_steps, shake_z=shake_z, shake_qx=shake_qx, open_width=open_width,
-                    settle_steps=settle_steps, tug_steps=tug_steps, tug_dirs=tug_dirs)
+                    close_max_steps=close_max_steps, shake_z=None, shake_qx=None, open_width=None)
+
+
+class Segment:
+    """One stretch of a protocol (a CPU ``_move`` or ``_wait`` call) as the MuJoCo Warp backend replays it
+    (:class:`graspgen.sim.warp_batch.BatchRun`): ``n`` steps under phase name ``phase``; ``kind`` is ``pos`` (mocap
+    at the grasp plus ``table[k]`` m along the approach axis), ``zpos`` (mocap at the grasp plus ``table[k]`` m along
+    world z), ``quat`` (mocap at the grasp plus ``lift`` m along world z, turned by the quaternion ``table[k]``),
+    ``wait`` (targets unchanged) or ``tug`` (a wait with the object pulled by its weight along the TCP-frame
+    direction ``table (3,)``). ``mark``: the object's world pose is taken when the segment starts (the reference of
+    ``motion_shaking_*``)."""
+
+    def __init__(self, phase: str, n: int, kind: str, table: np.ndarray | None = None, *, lift: float = 0.0,
+                 mark: bool = False) -> None:
+        self.phase, self.n, self.kind, self.table = phase, int(n), kind, table
+        self.lift, self.mark = float(lift), bool(mark)

@@ -2,15 +2,16 @@
 
 :class:`LiftSimulator.rollout <graspgen.sim.lift.LiftSimulator>` asks the protocol of its ``params``
 (:func:`protocol_of`) to run a grasp; the rules of each phase are written out in :class:`LiftSimulator`'s docstring
-and the settings in :mod:`graspgen.sim.protocols`. What code outside the simulator needs to know of a protocol is
-an attribute here (:attr:`RolloutProtocol.free_space`, :attr:`~RolloutProtocol.lifts`,
-:meth:`~RolloutProtocol.settings`, :meth:`~RolloutProtocol.load`, :meth:`~RolloutProtocol.calm`), never a test of
-its name.
+and the settings in :mod:`graspgen.sim.protocols`. Everything the simulator, the MuJoCo Warp backend and code outside
+the simulator need to know of a protocol is a method or attribute of its class (the interface:
+:class:`graspgen.sim.protocol_base.RolloutProtocol`), never a test of its name: its phases, motion schedule, contact
+overrides, Warp placement kind, segments and gravity, and its ``free_space``, ``lifts``, ``settings``, ``load`` and
+``calm``.
 
 Adding a protocol: its settings in :class:`graspgen.sim.protocols.LiftParams` (and its name in
 :data:`~graspgen.sim.protocols.PROTOCOLS`), a subclass of :class:`RolloutProtocol` (or of :class:`FreeSpaceProtocol`,
-whose frame places, closes and judges, with :meth:`~FreeSpaceProtocol.disturb` its own) and one entry in
-:data:`ROLLOUT_PROTOCOLS`.
+whose frame places, closes and judges, with :meth:`~FreeSpaceProtocol.disturb`, :meth:`~RolloutProtocol.segments`
+and its schedule its own) and one entry in :data:`ROLLOUT_PROTOCOLS`.
 
 Each phase method takes the simulator (``sim``, a :class:`~graspgen.sim.lift.LiftSimulator`; not imported here, so
 that the model set-up and the motion profiles below it can ask a protocol too) and works on its state; a rule that
@@ -21,15 +22,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
 from graspgen.geometry.poses import quat_mul, rotation_angle
 from graspgen.grippers import jaw_opening
 from graspgen.sim.lift_rules import Drift, both_jaws, jaws_on, no_contacts
+from graspgen.sim.motion import Schedule, Segment, base_schedule, shake_quats, shake_wave
+from graspgen.sim.protocol_base import Decided, Load, RolloutProtocol
 from graspgen.sim.protocols import PROTOCOLS, AcronymParams, GraspDataGenParams, LiftParams, Outcome, RolloutResult
 from graspgen.validation import check_choice
 
@@ -37,68 +39,12 @@ __all__ = ["ROLLOUT_PROTOCOLS", "AcronymProtocol", "Decided", "FreeSpaceProtocol
            "RolloutProtocol", "TableProtocol", "protocol_of"]
 
 
-class Decided(Exception):
-    """A rule fired: carries the outcome code and the phase."""
-
-    def __init__(self, code: int, phase: str) -> None:
-        super().__init__(code, phase)
-        self.code = code
-        self.phase = phase
-
-
-@dataclass(frozen=True)
-class Load:
-    """What a protocol asks of a grip after closing, for the analytic thresholds
-    (:func:`graspgen.quality.mechanics_theory.shake_profiles`)."""
-
-    gravity: float
-    """Acceleration (m/s^2) the grip carries at rest along the approach: gravity, or the tug's."""
-    lift_acceleration: float
-    """Peak acceleration (m/s^2) of the lift on top of it (0: nothing is lifted)."""
-    shake: tuple[float, float, float, int] | None
-    """``(amplitude m, angle rad, frequency Hz, cycles)`` of the linear then angular shake; None: no shake."""
-    shake_sign: float
-    """+1: the linear shake's acceleration adds to the load as world z does (table: up); -1: along +approach."""
-
-
-class RolloutProtocol:
-    """A protocol: its phases (``rollout`` runs them) and what the outside needs to know of it."""
-
-    name: ClassVar[str]
-    """The protocol's name (:data:`graspgen.sim.protocols.PROTOCOLS`)."""
-    free_space: ClassVar[bool]
-    """Runs in free space: the hand placed at the grasp with its jaws at the protocol's own opening, gravity the
-    protocol's; needs no support (a support would be in the way). False: approach and lift on a support."""
-
-    @property
-    def lifts(self) -> bool:
-        """Lifts the object (the hand rises ``lift_height``)."""
-        return not self.free_space
-
-    def settings(self, lift: LiftParams) -> AcronymParams | GraspDataGenParams | None:
-        """The protocol's own settings block of ``lift`` (None: ``LiftParams``' own fields)."""
-        return None
-
-    def load(self, lift: LiftParams, g: float) -> Load:
-        """The grip's load under ``lift`` with gravity ``g`` (m/s^2)."""
-        raise NotImplementedError
-
-    def calm(self, lift: LiftParams) -> LiftParams:
-        """``lift`` without the disturbance after closing (no shake), where the protocol has one to switch off."""
-        return lift
-
-    def rollout(self, sim: Any, pos: np.ndarray, quat: np.ndarray, R: np.ndarray, width: float,
-                target: int, roles: np.ndarray, index: int, observer) -> RolloutResult:
-        """Run the phases on ``sim`` for the grasp at ``pos (3,)``, ``quat (4,)``, ``R (3, 3)`` of pad separation
-        ``width`` (m) on body ``target`` (``roles``, ``index``: :meth:`LiftSimulator.target_roles`)."""
-        raise NotImplementedError
-
-
 class TableProtocol(RolloutProtocol):
     """``table``: placement at the pre-grasp pose, approach, closing, lift, hold, shake (:class:`LiftSimulator`)."""
 
     name = "table"
     free_space = False
+    placement = "pregrasp"
 
     def load(self, lift: LiftParams, g: float) -> Load:
         shake = (lift.shake_amplitude, lift.shake_angle, lift.shake_frequency, lift.shake_cycles) if lift.shake \
@@ -107,6 +53,25 @@ class TableProtocol(RolloutProtocol):
 
     def calm(self, lift: LiftParams) -> LiftParams:
         return dataclasses.replace(lift, shake=False)
+
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        s = base_schedule(lift, dt)
+        if not lift.shake:
+            return s
+        return dataclasses.replace(
+            s, shake_z=shake_wave(lift.shake_amplitude, lift.shake_frequency, lift.shake_cycles, dt),
+            shake_qx=shake_quats(lift.shake_angle, lift.shake_frequency, lift.shake_cycles, dt))
+
+    def segments(self, lift, schedule) -> list[Segment]:
+        """Lift, hold and :meth:`shake`."""
+        s = schedule
+        top = float(s.lift_offsets[-1, 2])
+        segments = [Segment("lifting", len(s.lift_offsets), "zpos", s.lift_offsets[:, 2]),
+                    Segment("holding", s.hold_steps, "wait")]
+        if lift.shake:
+            segments += [Segment("shaking", len(s.shake_z), "zpos", top + s.shake_z, mark=True),
+                         Segment("shaking", len(s.shake_qx), "quat", s.shake_qx, lift=top)]
+        return segments
 
     @staticmethod
     def approach_check(sim: Any, roles: np.ndarray, target: int, index: int):
@@ -164,7 +129,7 @@ class TableProtocol(RolloutProtocol):
             closed_width, motion_closing, pose_closed, contacts = sim._closing(target, roles, observer)
             if not both_jaws(contacts):
                 raise Decided(Outcome.NO_CONTACT_ESTABLISHED, "closing")
-            sim._gravity_view[:] = sim.gravity
+            sim._gravity_view[:] = self.start_gravity(p, sim.gravity, R)
             # lift, hold, shake
             rel_p0, rel_R0 = sim.relative(target)
             drift = Drift(rel_p0, rel_R0)
@@ -205,12 +170,26 @@ class FreeSpaceProtocol(RolloutProtocol):
     :meth:`disturb` tests the grip (the protocol's own part); success when both jaws still touch the target."""
 
     free_space = True
+    placement = "grasp"
 
     def settings(self, lift: LiftParams) -> AcronymParams | GraspDataGenParams:
         return getattr(lift, self.name)
 
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        """The shared profiles with the protocol's own opening, and a closing timeout of at least 1.25x a full
+        close (from fully open to fully closed takes ``(open - min) / closing_speed``)."""
+        s, free = base_schedule(lift, dt), self.settings(lift)
+        open_width = float(np.clip(max_width if free.open_width is None else free.open_width, min_width, max_width))
+        full_close = 1.25 * (open_width - min_width) / closing_speed
+        return dataclasses.replace(s, open_width=open_width,
+                                   close_max_steps=max(s.close_max_steps, math.ceil(full_close / dt - 1e-9)))
+
+    def start_gravity(self, lift, gravity, R) -> np.ndarray:
+        """Off (the free-space protocols' gravity stays off unless theirs says otherwise)."""
+        return np.zeros(3)
+
     def disturb(self, sim: Any, pos, quat, R, target, check_held, observer) -> None:
-        """The disturbance after closing; ``check_held(phase)`` at every check."""
+        """The disturbance after closing, under :meth:`start_gravity`; ``check_held(phase)`` at every check."""
         raise NotImplementedError
 
     def rollout(self, sim, pos, quat, R, width, target, roles, index, observer) -> RolloutResult:
@@ -244,6 +223,7 @@ class FreeSpaceProtocol(RolloutProtocol):
 
             # the protocol's disturbance, then the judge
             shake_mark = sim.mark(target)
+            sim._gravity_view[:] = self.start_gravity(sim.params, sim.gravity, R)
             self.disturb(sim, pos, quat, R, target, check_held, observer)
             if not all(jaws_on(sim.data, side, roles)):
                 raise Decided(Outcome.SLIPPED_DURING_LIFTING, "end")
@@ -278,12 +258,34 @@ class AcronymProtocol(FreeSpaceProtocol):
     def calm(self, lift: LiftParams) -> LiftParams:
         return dataclasses.replace(lift, acronym=AcronymParams(shake_amplitude=0.0, shake_angle=0.0))
 
+    def contact_overrides(self, lift: LiftParams) -> AcronymParams:
+        return lift.acronym
+
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        acr = lift.acronym
+        return dataclasses.replace(
+            super().schedule(lift, dt, min_width, max_width, closing_speed),
+            shake_z=shake_wave(acr.shake_amplitude, acr.shake_frequency, acr.shake_cycles, dt),
+            shake_qx=shake_quats(acr.shake_angle, acr.shake_frequency, acr.shake_cycles, dt),
+            settle_steps=int(round(acr.settle_time / dt)))
+
+    def segments(self, lift, schedule) -> list[Segment]:
+        s = schedule
+        return [Segment("shaking", len(s.shake_z), "pos", s.shake_z, mark=True),
+                Segment("shaking", len(s.shake_qx), "quat", s.shake_qx),
+                Segment("holding", s.settle_steps, "wait")]
+
+    def start_gravity(self, lift, gravity, R) -> np.ndarray:
+        """As ``acronym.gravity`` says: the scene's (``world``), its magnitude along the approach (``approach``),
+        or off."""
+        if lift.acronym.gravity == "world":
+            return gravity.copy()
+        if lift.acronym.gravity == "approach":
+            return math.sqrt(float(gravity @ gravity)) * R[:, 2]
+        return np.zeros(3)
+
     def disturb(self, sim, pos, quat, R, target, check_held, observer) -> None:
-        acr, s = sim.params.acronym, sim.schedule
-        if acr.gravity == "world":
-            sim._gravity_view[:] = sim.gravity
-        elif acr.gravity == "approach":
-            sim._gravity_view[:] = math.sqrt(float(sim.gravity @ sim.gravity)) * R[:, 2]
+        s = sim.schedule
         sim._move(pos + s.shake_z[:, None] * R[:, 2], None, "shaking", check_held, observer)
         sim._move(np.repeat(pos[None], len(s.shake_qx), axis=0), quat_mul(quat, s.shake_qx),
                   "shaking", check_held, observer)
@@ -298,6 +300,15 @@ class GraspDataGenProtocol(FreeSpaceProtocol):
 
     def load(self, lift: LiftParams, g: float) -> Load:
         return Load(lift.graspdatagen.force_scale * g, 0.0, None, 1.0)
+
+    def schedule(self, lift, dt, min_width, max_width, closing_speed) -> Schedule:
+        return dataclasses.replace(super().schedule(lift, dt, min_width, max_width, closing_speed),
+                                   tug_steps=max(1, int(round(lift.graspdatagen.tug_time / dt))),
+                                   tug_dirs=lift.graspdatagen.directions())
+
+    def segments(self, lift, schedule) -> list[Segment]:
+        """One tug per direction."""
+        return [Segment("shaking", schedule.tug_steps, "tug", d, mark=i == 0) for i, d in enumerate(schedule.tug_dirs)]
 
     def disturb(self, sim, pos, quat, R, target, check_held, observer) -> None:
         weight = sim.params.graspdatagen.force_scale * float(sim.model.body_subtreemass[target]) * math.sqrt(

@@ -34,7 +34,9 @@ import importlib
 import importlib.metadata
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, fields
+from types import MappingProxyType
 
 import mujoco
 import numpy as np
@@ -42,17 +44,40 @@ import numpy as np
 from graspgen.errors import MissingDependencyError, SettingsError, SimulationError
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.poses_mj import pos_quat
-from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
-from graspgen.sim.warp_batch import BatchRun, disturbance_segments, unfinished_result
+from graspgen.sim.protocol_phases import ROLLOUT_PROTOCOLS
+from graspgen.sim.protocols import LiftParams, RolloutResult
+from graspgen.sim.warp_batch import BatchRun, free_placement
 from graspgen.sim.warp_table import TableRun, table_placement
 from graspgen.validation import check, check_instance, check_int
 from shared_utils.keys import KEY_OMIT_DEFAULT  # the flag of the settings added with this backend (re-exported)
 
-__all__ = ["KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WarpParams", "WarpLiftSimulator", "import_warp", "warp_versions",
-           "require_warp"]
+__all__ = ["KEY_OMIT_DEFAULT", "WARP_PROTOCOLS", "WARP_RUNS", "WarpLiftSimulator", "WarpParams", "WarpRun",
+           "import_warp", "require_warp", "warp_versions"]
 
-#: The protocols the warp backend runs.
-WARP_PROTOCOLS: tuple[str, ...] = ("acronym", "graspdatagen", "table")
+
+@dataclass(frozen=True)
+class WarpRun:
+    """How the warp backend rolls out one kind of placement (:attr:`graspgen.sim.protocol_base.RolloutProtocol.
+    placement`)."""
+
+    place: Callable[..., dict | RolloutResult]
+    """``place(cpu, pose, pos, quat, width, target, roles)``: the placement on the CPU, gravity off; a result when
+    it decides the grasp, else the world's start state (:func:`graspgen.sim.warp_table.table_placement`,
+    :func:`graspgen.sim.warp_batch.free_placement`)."""
+    batch: type[BatchRun]
+    """The batch machine (:class:`graspgen.sim.warp_batch.BatchRun` or a subclass)."""
+    widths: bool
+    """The placement needs each grasp's width."""
+
+
+#: The warp backend's rollout for each kind of placement a protocol names.
+WARP_RUNS: MappingProxyType[str, WarpRun] = MappingProxyType({
+    "grasp": WarpRun(free_placement, BatchRun, widths=False),
+    "pregrasp": WarpRun(table_placement, TableRun, widths=True)})
+
+#: The protocols the warp backend runs: those whose placement it knows.
+WARP_PROTOCOLS: tuple[str, ...] = tuple(sorted(name for name, p in ROLLOUT_PROTOCOLS.items()
+                                               if p.placement in WARP_RUNS))
 
 _INSTALL = "pip install -e '.[warp]' (mujoco-warp and warp-lang)"
 
@@ -184,8 +209,12 @@ class WarpLiftSimulator:
                 self.device_model.geom_friction = self.world_friction
         self.naconmax = int(self.device_data.contact.geom.shape[0])
         """Contacts allocated for the whole batch."""
-        self.segments = disturbance_segments(params, cpu.schedule)
-        """The protocol's disturbance as :class:`graspgen.sim.warp_batch.Segment` s."""
+        self.protocol = cpu.protocol
+        """The protocol object (:mod:`graspgen.sim.protocol_phases`)."""
+        self.run = WARP_RUNS[self.protocol.placement]
+        """The placement and batch machine of the protocol's placement."""
+        self.segments = self.protocol.segments(params, cpu.schedule)
+        """The protocol's disturbance as :class:`graspgen.sim.motion.Segment` s."""
         self.timings = {"placement_s": 0.0, "batches_s": 0.0, "closing_record_s": 0.0}
         """Wall seconds (benchmarks): the placements on the CPU, the batches (all of them), and within those the
         end-of-closing records on the CPU, summed over :meth:`rollouts` calls."""
@@ -239,10 +268,10 @@ class WarpLiftSimulator:
         T = np.asarray(T_tcp_world, dtype=float)
         if T.ndim != 3 or T.shape[1:] != (4, 4):
             raise SettingsError(f"T_tcp_world: expected (n, 4, 4) poses, got shape {T.shape}")
-        table = self.params.protocol == "table"
-        if table:
+        if self.run.widths:
             if widths is None:
-                raise SettingsError("widths: the table protocol needs one pad separation (m) per grasp, got None")
+                raise SettingsError(f"widths: the {self.params.protocol} protocol needs one pad separation (m) per "
+                                    "grasp, got None")
             widths = np.asarray(widths, dtype=float).reshape(-1)
             if len(widths) != len(T) or not (np.isfinite(widths).all() and (widths >= 0).all()):
                 raise SettingsError(f"widths: expected {len(T)} finite widths >= 0 m, got {widths.tolist()[:8]}")
@@ -261,7 +290,7 @@ class WarpLiftSimulator:
                 pending.append((i, placed))
         self.timings["placement_s"] += time.perf_counter() - t0
         t0 = time.perf_counter()
-        run = TableRun if table else BatchRun
+        run = self.run.batch
         for b0 in range(0, len(pending), self.nworld):
             batch = pending[b0:b0 + self.nworld]
             for (i, _), result in zip(batch, run(self, [s for _, s in batch]).run()):
@@ -277,14 +306,6 @@ class WarpLiftSimulator:
         gravity = cpu.model.opt.gravity
         gravity[:] = 0.0
         try:
-            if cpu.params.protocol == "table":
-                return table_placement(cpu, pose, pos, quat, float(width), target, roles)
-            cpu.place(pos, quat, cpu.schedule.open_width)
-            code = cpu.contact_code(roles, target, cpu.strict_allowance)
+            return self.run.place(cpu, pose, pos, quat, width, target, roles)
         finally:
             gravity[:] = cpu.gravity
-        if code is not None:
-            return unfinished_result(cpu, Outcome(code), "placement", 0)
-        d = cpu.data
-        return {"pos": pos, "quat": quat, "R": pose[:3, :3].copy(), "qpos": d.qpos.copy(), "ctrl": d.ctrl.copy(),
-                "mark": cpu.mark(target), "target": target, "roles": roles}

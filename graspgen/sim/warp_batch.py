@@ -2,13 +2,14 @@
 
 Every world follows its own timeline, as its grasp would on the CPU: the protocol's segments before closing (the
 ``table`` protocol's approach: :class:`graspgen.sim.warp_table.TableRun`), closing (until the jaws stop, checked
-every ``check_interval`` steps, or the timeout), then the protocol's disturbance segments (:class:`Segment`), each
-with its own checks every ``check_interval`` of its steps and at its end; a world whose outcome is decided stops
-counting steps and its record is frozen (its world keeps stepping with the others, unobserved, until the batch is
-done). What is read on the CPU (the end of closing, the results) is the CPU backend's own code
-(:class:`graspgen.sim.lift_state.LiftState`, :mod:`graspgen.sim.lift_rules`). :class:`BatchRun` is the free-space
-protocols' machine; its hooks (:meth:`BatchRun._check_before`, ``_held_rule``, ``_end_rule``, ``_lift_gain``)
-are what the ``table`` protocol replaces.
+every ``check_interval`` steps, or the timeout), then the protocol's disturbance segments
+(:class:`graspgen.sim.motion.Segment`), each with its own checks every ``check_interval`` of its steps and at its
+end; a world whose outcome is decided stops counting steps and its record is frozen (its world keeps stepping with
+the others, unobserved, until the batch is done). What is read on the CPU (the end of closing, the results) is the
+CPU backend's own code (:class:`graspgen.sim.lift_state.LiftState`, :mod:`graspgen.sim.lift_rules`). :class:`BatchRun`
+is the machine of the protocols placed at the grasp (``placement`` ``"grasp"``, placed by :func:`free_placement`);
+its hooks (:meth:`BatchRun._check_before`, ``_held_rule``, ``_end_rule``, ``_lift_gain``) are what the
+``"pregrasp"`` placement's machine (``table``) replaces.
 """
 
 from __future__ import annotations
@@ -23,56 +24,11 @@ from graspgen.errors import SimulationError
 from graspgen.geometry.poses import quat_mul, rotation_angles
 from graspgen.sim.lift import LiftSimulator
 from graspgen.sim.lift_rules import both_jaws, closing_tolerance, no_contacts, rollout_result
-from graspgen.sim.motion import Schedule
-from graspgen.sim.protocols import LiftParams, Outcome, RolloutResult
+from graspgen.sim.motion import Segment
+from graspgen.sim.protocols import Outcome, RolloutResult
 from graspgen.sim.warp_rules import jaws_on, relative_poses
 
-__all__ = ["BatchRun", "Segment", "closing_record", "disturbance_segments", "start_gravity", "unfinished_result"]
-
-class Segment:
-    """One stretch of a protocol (a CPU ``_move`` or ``_wait`` call): ``n`` steps under phase name ``phase``;
-    ``kind`` is ``pos`` (mocap at the grasp plus ``table[k]`` m along the approach axis), ``zpos`` (mocap at the
-    grasp plus ``table[k]`` m along world z), ``quat`` (mocap at the grasp plus ``lift`` m along world z, turned by
-    the quaternion ``table[k]``), ``wait`` (targets unchanged) or ``tug`` (a wait with the object pulled by its
-    weight along the TCP-frame direction ``table (3,)``). ``mark``: the object's world pose is taken when the
-    segment starts (the reference of ``motion_shaking_*``)."""
-
-    def __init__(self, phase: str, n: int, kind: str, table: np.ndarray | None = None, *, lift: float = 0.0,
-                 mark: bool = False) -> None:
-        self.phase, self.n, self.kind, self.table = phase, int(n), kind, table
-        self.lift, self.mark = float(lift), bool(mark)
-
-
-def disturbance_segments(params: LiftParams, schedule: Schedule) -> list[Segment]:
-    """The protocol's disturbance (the CPU backend's ``disturb`` of :mod:`graspgen.sim.protocol_phases`; ``table``:
-    lift, hold and ``TableProtocol.shake``) as segments."""
-    s = schedule
-    if params.protocol == "table":
-        top = float(s.lift_offsets[-1, 2])
-        segments = [Segment("lifting", len(s.lift_offsets), "zpos", s.lift_offsets[:, 2]),
-                    Segment("holding", s.hold_steps, "wait")]
-        if params.shake:
-            segments += [Segment("shaking", len(s.shake_z), "zpos", top + s.shake_z, mark=True),
-                         Segment("shaking", len(s.shake_qx), "quat", s.shake_qx, lift=top)]
-        return segments
-    if params.protocol == "acronym":
-        return [Segment("shaking", len(s.shake_z), "pos", s.shake_z, mark=True),
-                Segment("shaking", len(s.shake_qx), "quat", s.shake_qx),
-                Segment("holding", s.settle_steps, "wait")]
-    return [Segment("shaking", s.tug_steps, "tug", d, mark=i == 0) for i, d in enumerate(s.tug_dirs)]
-
-
-def start_gravity(cpu: LiftSimulator, R: np.ndarray) -> np.ndarray:
-    """Gravity (3,) of a world once its closing ended, for the grasp's rotation ``R (3, 3)``
-    (:meth:`graspgen.sim.protocol_phases.AcronymProtocol.disturb`; ``graspdatagen``: off; ``table``: the scene's)."""
-    if cpu.params.protocol == "table":
-        return cpu.gravity.copy()
-    if cpu.params.protocol == "acronym":
-        if cpu.params.acronym.gravity == "world":
-            return cpu.gravity.copy()
-        if cpu.params.acronym.gravity == "approach":
-            return math.sqrt(float(cpu.gravity @ cpu.gravity)) * R[:, 2]
-    return np.zeros(3)
+__all__ = ["BatchRun", "closing_record", "free_placement", "unfinished_result"]
 
 
 def unfinished_result(cpu: LiftSimulator, code: Outcome, phase: str, steps: int, contacts=None,
@@ -83,6 +39,20 @@ def unfinished_result(cpu: LiftSimulator, code: Outcome, phase: str, steps: int,
     closed_width, motion, pose = closing if closing is not None else (nan, (nan, nan), np.full((4, 4), nan))
     return rollout_result(cpu.params, code, phase, steps, cpu.schedule.dt, closed_width, nan, (nan, nan),
                           no_contacts() if contacts is None else contacts, motion, (nan, nan), pose, (nan, nan))
+
+
+def free_placement(cpu: LiftSimulator, pose: np.ndarray, pos: np.ndarray, quat: np.ndarray, width: float | None,
+                   target: int, roles: np.ndarray) -> dict | RolloutResult:
+    """The free-space protocols' placement on the CPU (``FreeSpaceProtocol.rollout``'s, gravity off): a result when
+    the hand at the grasp pose ``pose (4, 4)`` (``pos (3,)``, ``quat (4,)``), open to the protocol's opening,
+    touches anything (the target with no allowance), else the world's start state; ``width`` is ignored."""
+    cpu.place(pos, quat, cpu.schedule.open_width)
+    code = cpu.contact_code(roles, target, cpu.strict_allowance)
+    if code is not None:
+        return unfinished_result(cpu, Outcome(code), "placement", 0)
+    d = cpu.data
+    return {"pos": pos, "quat": quat, "R": pose[:3, :3].copy(), "qpos": d.qpos.copy(), "ctrl": d.ctrl.copy(),
+            "mark": cpu.mark(target), "target": target, "roles": roles}
 
 
 def closing_record(cpu: LiftSimulator, world: int, state: dict, target: int, roles: np.ndarray, arrays: dict,
@@ -354,7 +324,7 @@ class BatchRun:
             self.seg[i] = self.done_seg
             return
         self.rel0_p[i], self.rel0_R[i] = p[i], R[i]
-        self.gravity[i] = start_gravity(self.sim.cpu, self.R[i])
+        self.gravity[i] = self.sim.protocol.start_gravity(self.sim.params, self.sim.cpu.gravity, self.R[i])
         self.forces_changed = True
         self.seg[i], self.k[i] = self.C, 0
         self._advance(i, a)

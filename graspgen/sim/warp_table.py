@@ -26,8 +26,9 @@ import numpy as np
 
 from graspgen.grippers import jaw_opening
 from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.motion import Segment
 from graspgen.sim.protocols import Outcome, RolloutResult
-from graspgen.sim.warp_batch import BatchRun, Segment, unfinished_result
+from graspgen.sim.warp_batch import BatchRun, unfinished_result
 from graspgen.sim.warp_rules import NO_CODE, live_codes, moved_objects, slipped
 
 __all__ = ["TableRun", "table_placement"]
