@@ -150,13 +150,13 @@ class LiftSimulator(LiftState):
         """The protocol object of ``params.protocol`` (:mod:`graspgen.sim.protocol_phases`): it runs the phases."""
         return protocol_of(self.params)
 
-    def rollout(self, T_tcp_world, width: float, target_body: str, *,
+    def rollout(self, T_world_tcp, width: float, target_body: str, *,
                 observer: Callable[[str, int], None] | None = None) -> RolloutResult:
         """Roll out one grasp and label it (protocol and rules in the class docstring).
 
         Parameters
         ----------
-        T_tcp_world
+        T_world_tcp
             ``(4, 4)`` world pose of the TCP frame at the grasp (z approach, x closing).
         width
             Pad separation (m) of the grasp (the object's width between the contacts); the jaws open to
@@ -172,9 +172,9 @@ class LiftSimulator(LiftState):
         -------
         RolloutResult
         """
-        pos, quat = pos_quat(T_tcp_world, "T_tcp_world")
+        pos, quat = pos_quat(T_world_tcp, "T_world_tcp")
         width = check_number("width", width, low=0.0)
         target, roles, index = self.target_roles(target_body)
         self.steps = 0
-        R = np.asarray(T_tcp_world, dtype=float)[:3, :3]
+        R = np.asarray(T_world_tcp, dtype=float)[:3, :3]
         return self.protocol.rollout(self, pos, quat, R, width, target, roles, index, observer)

@@ -161,12 +161,12 @@ class _TargetPoses:
 
 
 def rollout_with_object_pose(
-    simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float, target_body: str
+    simulator: LiftSimulator, T_world_tcp: np.ndarray, width: float, target_body: str
 ) -> tuple[RolloutResult, np.ndarray, np.ndarray | None]:
     """Roll out one grasp and also return the target's poses (4, 4), mesh frame to world: at placement (before any
     step), and when the contacts were recorded (the end of closing; None when the rollout ended before closing)."""
     bid = mujoco.mj_name2id(simulator.model, mujoco.mjtObj.mjOBJ_BODY, target_body)
     observer = _TargetPoses(simulator.data, bid)
-    result = simulator.rollout(T_tcp_world, width, target_body, observer=observer)
+    result = simulator.rollout(T_world_tcp, width, target_body, observer=observer)
     assert observer.placed is not None  # the protocol reports the placement before anything can stop it
     return result, observer.placed, observer.closed

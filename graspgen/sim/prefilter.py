@@ -120,7 +120,7 @@ Why 2 mm:
 def _check_widths(widths: object, n: int) -> np.ndarray:
     w = np.asarray(widths, dtype=float)
     if w.shape != (n,):
-        raise SettingsError(f"widths: must have shape ({n},) like T_tcp_world, got {w.shape}")
+        raise SettingsError(f"widths: must have shape ({n},) like T_world_tcp, got {w.shape}")
     if not np.isfinite(w).all() or (n and w.min() < 0):
         raise SettingsError("widths: must be finite and >= 0 (m)")
     return w
@@ -296,13 +296,13 @@ class CollisionChecker:
         """Jaw opening (m) used for contact widths ``widths (n,)``: ``width + width_margin`` clipped to the range."""
         return jaw_opening(widths, self.params.width_margin, self.gripper.min_width, self.gripper.max_width)
 
-    def check(self, T_tcp_world, widths, target_body_name: str, *, return_steps: bool = False,
+    def check(self, T_world_tcp, widths, target_body_name: str, *, return_steps: bool = False,
               ignore_target: bool = False):
         """Collision code of each candidate (see the module docstring).
 
         Parameters
         ----------
-        T_tcp_world
+        T_world_tcp
             ``(n, 4, 4) float`` grasp (TCP) poses in the world frame.
         widths
             ``(n,) float`` contact widths (m); the gripper is opened to ``width + width_margin``.
@@ -320,7 +320,7 @@ class CollisionChecker:
         codes : (n,) int8
             -1 free, 0 ground/support, 1 target, 2 clutter.
         """
-        T = check_transforms("T_tcp_world", T_tcp_world)
+        T = check_transforms("T_world_tcp", T_world_tcp)
         n = len(T)
         openings = self.opening(_check_widths(widths, n))
         target_root = self._target_root(target_body_name)

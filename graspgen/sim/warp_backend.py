@@ -245,12 +245,12 @@ class WarpLiftSimulator:
 
     # -- public -------------------------------------------------------------------------------------------------
 
-    def rollouts(self, T_tcp_world, target_body, widths=None) -> list[RolloutResult]:
+    def rollouts(self, T_world_tcp, target_body, widths=None) -> list[RolloutResult]:
         """Roll out grasps and label them, ``nworld`` at a time; one result per grasp, in input order.
 
         Parameters
         ----------
-        T_tcp_world
+        T_world_tcp
             ``(n, 4, 4)`` world poses of the TCP frame at the grasps (z approach, x closing).
         target_body
             Name of the object body, e.g. ``"obj/0_box"``, or ``(n,)`` names, one per grasp (the worlds of a batch
@@ -265,9 +265,9 @@ class WarpLiftSimulator:
         list of RolloutResult
             As :meth:`LiftSimulator.rollout` returns, per grasp.
         """
-        T = np.asarray(T_tcp_world, dtype=float)
+        T = np.asarray(T_world_tcp, dtype=float)
         if T.ndim != 3 or T.shape[1:] != (4, 4):
-            raise SettingsError(f"T_tcp_world: expected (n, 4, 4) poses, got shape {T.shape}")
+            raise SettingsError(f"T_world_tcp: expected (n, 4, 4) poses, got shape {T.shape}")
         if self.run.widths:
             if widths is None:
                 raise SettingsError(f"widths: the {self.params.protocol} protocol needs one pad separation (m) per "
@@ -302,7 +302,7 @@ class WarpLiftSimulator:
 
     def _place(self, pose: np.ndarray, width: float | None, target: int, roles: np.ndarray) -> dict | RolloutResult:
         cpu = self.cpu
-        pos, quat = pos_quat(pose, "T_tcp_world")
+        pos, quat = pos_quat(pose, "T_world_tcp")
         gravity = cpu.model.opt.gravity
         gravity[:] = 0.0
         try:

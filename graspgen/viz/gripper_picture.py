@@ -57,9 +57,9 @@ def _views(centre: np.ndarray, extent: float, px: int):
 
 def _tcp_axes(draw, camera, length: float) -> None:
     """The TCP frame's axes (x red, y green, z blue) drawn as lines from the TCP origin."""
-    T_cam_world = np.linalg.inv(np.asarray(camera.T_world_camera, dtype=float))
+    T_camera_world = np.linalg.inv(np.asarray(camera.T_world_camera, dtype=float))
     ends = _PICTURE_POSE[:3, 3] + length * _PICTURE_POSE[:3, :3].T
-    points = transform_points(T_cam_world, np.vstack([_PICTURE_POSE[:3, 3], ends]))
+    points = transform_points(T_camera_world, np.vstack([_PICTURE_POSE[:3, 3], ends]))
     uv = project(camera.K, points)
     font = _font(13)
     for k, name in enumerate("xyz"):

@@ -90,7 +90,7 @@ class RolloutMovie:
     """Whether the rollouts stage simulated this grasp (False: the pre-filter labelled it; re-run anyway here)."""
 
 
-def record_rollout(simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float,
+def record_rollout(simulator: LiftSimulator, T_world_tcp: np.ndarray, width: float,
                    target_body: str) -> tuple[RolloutResult, list[Frame]]:
     """Roll one grasp out and record the state at every rule check (the observer calls: after placement and every
     ``check_interval`` steps). Recording reads the state only, so the result is the unobserved one."""
@@ -100,7 +100,7 @@ def record_rollout(simulator: LiftSimulator, T_tcp_world: np.ndarray, width: flo
     def observe(phase: str, steps: int) -> None:
         frames.append(Frame(phase, int(steps), steps * dt, simulator.data.qpos.copy()))
 
-    result = simulator.rollout(T_tcp_world, width, target_body, observer=observe)
+    result = simulator.rollout(T_world_tcp, width, target_body, observer=observe)
     return result, frames
 
 
@@ -132,7 +132,7 @@ def pick_frames(frames: Sequence[Frame], n: int) -> list[Frame]:
     return [frames[i] for i in sorted(keys)]
 
 
-def side_cameras(T_tcp_world: np.ndarray, lift_height: float, *, width: int = 320, height: int = 240,
+def side_cameras(T_world_tcp: np.ndarray, lift_height: float, *, width: int = 320, height: int = 240,
                  distance: float = 0.55, elevation: float = math.radians(15.0)) -> list[Camera]:
     """Cameras looking at a grasp from the side, framing the grasp and the lift above it, best first.
 
@@ -142,7 +142,7 @@ def side_cameras(T_tcp_world: np.ndarray, lift_height: float, *, width: int = 32
     out). Each is aimed at the grasp point raised by half ``lift_height`` (m), from ``distance`` (m), with a 45
     degree vertical field of view. :func:`rollout_movie` takes the first whose view of the grasp is not blocked.
     """
-    T = np.asarray(T_tcp_world, dtype=float)
+    T = np.asarray(T_world_tcp, dtype=float)
     target = T[:3, 3] + np.array([0.0, 0.0, lift_height / 2.0])
     K = intrinsics_from_fov(width, height, math.radians(45.0))
     cameras = []

@@ -106,7 +106,7 @@ class RobustnessTaskParams:
 
 def grasp_robustness(
     simulator: LiftSimulator,
-    T_tcp_world: np.ndarray,
+    T_world_tcp: np.ndarray,
     width: float,
     target_body: str,
     geometry: ObjectGeometry,
@@ -123,7 +123,7 @@ def grasp_robustness(
     ----------
     simulator : LiftSimulator
         The compiled scene with the gripper (its initial configuration = the scene at rest).
-    T_tcp_world : (4, 4) float
+    T_world_tcp : (4, 4) float
         The nominal grasp (TCP to world); ``width`` its pad separation, m.
     target_body : str
         The target's body name, ``obj/<i>_<name>``.
@@ -140,14 +140,14 @@ def grasp_robustness(
     draws = np.asarray(draws, dtype=np.float64)
     if draws.ndim != 2 or draws.shape[1] != DRAWS_PER_COPY or len(draws) == 0:
         raise SettingsError(f"draws: expected shape (n >= 1, {DRAWS_PER_COPY}), got {draws.shape}")
-    poses = perturbed_poses(T_tcp_world, params.translation_sigma * draws[:, 0:3],
+    poses = perturbed_poses(T_world_tcp, params.translation_sigma * draws[:, 0:3],
                             params.rotation_sigma * draws[:, 3:6])
     outcomes, results, coms, mus = _roll_out_copies(simulator, poses, width, target_body, geometry, friction, draws,
                                                     params, epsilon_friction_follows)
     epsilons, sources = _copy_epsilons(results, poses, geometry, coms, mus, params, epsilon, gripper)
     radius = np.full(len(RADIUS_AXES), np.nan)
     if params.radius:
-        radius = robustness_radius(simulator, T_tcp_world, width, target_body, params)
+        radius = robustness_radius(simulator, T_world_tcp, width, target_body, params)
     return _labels(outcomes, epsilons, sources, radius, params)
 
 
@@ -241,7 +241,7 @@ def _labels(outcomes: np.ndarray, epsilons: np.ndarray, sources: list[str], radi
 
 
 def robustness_radius(
-    simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float, target_body: str, params: RobustnessParams
+    simulator: LiftSimulator, T_world_tcp: np.ndarray, width: float, target_body: str, params: RobustnessParams
 ) -> np.ndarray:
     """Robustness radius (6,) of a successful grasp along and about each TCP axis
     (:data:`~graspgen.workflows.robustness_columns.RADIUS_AXES`), m and rad: per direction the maximum when a copy
@@ -251,25 +251,25 @@ def robustness_radius(
         top = params.radius_max_translation if axis < 3 else params.radius_max_rotation
         edges = []
         for sign in (1.0, -1.0):
-            if _offset_succeeds(simulator, T_tcp_world, width, target_body, axis, sign * top):
+            if _offset_succeeds(simulator, T_world_tcp, width, target_body, axis, sign * top):
                 edges.append(top)
                 continue
             lo, hi = 0.0, top
             for _ in range(params.radius_iterations):
                 mid = 0.5 * (lo + hi)
-                ok = _offset_succeeds(simulator, T_tcp_world, width, target_body, axis, sign * mid)
+                ok = _offset_succeeds(simulator, T_world_tcp, width, target_body, axis, sign * mid)
                 lo, hi = (mid, hi) if ok else (lo, mid)
             edges.append(lo)
         out[axis] = min(edges)
     return out
 
 
-def _offset_succeeds(simulator: LiftSimulator, T_tcp_world: np.ndarray, width: float, target_body: str, axis: int,
+def _offset_succeeds(simulator: LiftSimulator, T_world_tcp: np.ndarray, width: float, target_body: str, axis: int,
                      amount: float) -> bool:
     """Whether the grasp offset by ``amount`` along/about TCP axis ``axis`` (0-2 m, 3-5 rad) succeeds."""
     offset = np.zeros(6)
     offset[axis] = amount
-    (T,) = perturbed_poses(T_tcp_world, offset[None, :3], offset[None, 3:])
+    (T,) = perturbed_poses(T_world_tcp, offset[None, :3], offset[None, 3:])
     return simulator.rollout(T, width, target_body).code == Outcome.SUCCESS
 
 

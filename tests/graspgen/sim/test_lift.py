@@ -313,9 +313,9 @@ def test_bad_arguments_name_themselves():
         sim.rollout(_top_down(), 0.05, "obj/9_nothing")
     with pytest.raises(ValueError, match="target_body"):
         sim.rollout(_top_down(), 0.05, "gripper/base")
-    with pytest.raises(ValueError, match="T_tcp_world"):
+    with pytest.raises(ValueError, match="T_world_tcp"):
         sim.rollout(np.diag([1.0, 1.0, -1.0, 1.0]), 0.05, "obj/0_box")  # a reflection
-    with pytest.raises(ValueError, match="T_tcp_world"):
+    with pytest.raises(ValueError, match="T_world_tcp"):
         sim.rollout(np.eye(3), 0.05, "obj/0_box")
     with pytest.raises(ValueError, match="width"):
         sim.rollout(_top_down(), -0.01, "obj/0_box")

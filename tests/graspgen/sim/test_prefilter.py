@@ -155,9 +155,9 @@ def test_bad_arguments():
         checker.check(T, [0.05], "obj/9_nothing")
     with pytest.raises(ValueError, match="^target_body_name: "):
         checker.check(T, [0.05], "gripper/base")
-    with pytest.raises(ValueError, match="^T_tcp_world: "):
+    with pytest.raises(ValueError, match="^T_world_tcp: "):
         checker.check(T[0], [0.05], TARGET)
-    with pytest.raises(ValueError, match=r"^T_tcp_world\[0\]: the rotation block is not a proper rotation"):
+    with pytest.raises(ValueError, match=r"^T_world_tcp\[0\]: the rotation block is not a proper rotation"):
         checker.check(T * 2, [0.05], TARGET)
     with pytest.raises(ValueError, match="^widths: "):
         checker.check(T, [0.05, 0.05], TARGET)
