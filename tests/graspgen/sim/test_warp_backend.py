@@ -153,11 +153,12 @@ def test_a_model_feature_mjwarp_lacks_is_a_simulation_error_naming_it():
 
 
 @pytest.mark.warp
-@pytest.mark.parametrize("protocol", ["acronym", "graspdatagen"])
-def test_both_backends_label_analytic_grasps_alike_on_the_cpu_device(protocol):
+@pytest.mark.parametrize("protocol, pad_torsion", [("acronym", "face"), ("graspdatagen", "face"),
+                                                   ("acronym", "patch")])
+def test_both_backends_label_analytic_grasps_alike_on_the_cpu_device(protocol, pad_torsion):
     pytest.importorskip("mujoco_warp")
     pytest.importorskip("warp")
-    params = P.LiftParams(protocol=protocol)
+    params = P.LiftParams(protocol=protocol, pad_torsion=pad_torsion)
     model = _world()
     poses = np.array([SIDE, TOP, AIR, INSIDE])
     cpu = L.LiftSimulator(model, params)
@@ -175,6 +176,11 @@ def test_both_backends_label_analytic_grasps_alike_on_the_cpu_device(protocol):
         if a.code == 5:
             assert math.isclose(a.closed_width, b.closed_width, abs_tol=1e-4)
             assert b.max_rel_translation < 1e-3 and len(b.contact_forces) > 0
+    if pad_torsion == "patch":  # each world's pads got their own patch's torsion, as the CPU's did
+        sim = W.WarpLiftSimulator(model, params, W.WarpParams(device="cpu", nworld=2))
+        sim.rollouts(poses[:2], "obj/0_box")
+        pads = sim.cpu.pad_patch.pad_geoms
+        assert sim.world_friction.numpy()[:, pads, 1].min() > 0.0
 
 
 # ------------------------------------------------------------------------------------ evaluate_grasps(backend=...)
