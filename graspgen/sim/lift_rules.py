@@ -12,13 +12,14 @@ import math
 import mujoco
 import numpy as np
 
+from graspgen.errors import SettingsError
 from graspgen.geometry.poses import rotation_angle
 from graspgen.sim.protocols import OUTCOME_NAMES, LiftParams, Outcome, RolloutResult
 from graspgen.validation import check_number
 
 __all__ = [
     "CLUTTER", "GRIPPER", "LEFT", "NOT_GRIPPER", "PALM", "RIGHT", "SUPPORT", "TARGET",
-    "Drift", "both_jaws", "closing_tolerance", "jaw_contacts", "jaws_on", "live_code", "no_contacts",
+    "Drift", "batch_arguments", "both_jaws", "closing_tolerance", "jaw_contacts", "jaws_on", "live_code", "no_contacts",
     "rollout_result",
 ]
 
@@ -155,3 +156,24 @@ def rollout_result(params: LiftParams, code, phase: str, steps: int, dt: float, 
         motion_closing_linear=motion_closing[0], motion_closing_angular=motion_closing[1],
         motion_shaking_linear=motion_shaking[0], motion_shaking_angular=motion_shaking[1],
         target_pose_closed=pose_closed, max_rel_translation=drift[0], max_rel_rotation=drift[1], firm=firm)
+
+
+def batch_arguments(T_world_tcp, widths, target_body, *, widths_needed_by: str | None):
+    """The arguments of a batch of rollouts, checked: ``(T (n, 4, 4) float, widths, bodies (n,) list of str)``.
+
+    ``widths``: ``(n,)`` finite pad separations >= 0 (m) when ``widths_needed_by`` names what needs them (None
+    raises, naming it); passed through unchecked otherwise. ``target_body``: one body name or ``n`` of them.
+    Raises SettingsError naming the argument."""
+    T = np.asarray(T_world_tcp, dtype=float)
+    if T.ndim != 3 or T.shape[1:] != (4, 4):
+        raise SettingsError(f"T_world_tcp: expected (n, 4, 4) poses, got shape {T.shape}")
+    if widths_needed_by is not None:
+        if widths is None:
+            raise SettingsError(f"widths: {widths_needed_by} needs one pad separation (m) per grasp, got None")
+        widths = np.asarray(widths, dtype=float).reshape(-1)
+        if len(widths) != len(T) or not (np.isfinite(widths).all() and (widths >= 0).all()):
+            raise SettingsError(f"widths: expected {len(T)} finite widths >= 0 m, got {widths.tolist()[:8]}")
+    bodies = [target_body] * len(T) if isinstance(target_body, str) else list(target_body)
+    if len(bodies) != len(T):
+        raise SettingsError(f"target_body: expected a body name or {len(T)} of them, got {len(bodies)}")
+    return T, widths, bodies

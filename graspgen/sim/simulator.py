@@ -23,8 +23,8 @@ from typing import Any, ClassVar
 import mujoco
 import numpy as np
 
-from graspgen.errors import SettingsError
 from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.lift_rules import batch_arguments
 from graspgen.sim.protocols import PROTOCOLS, LiftParams, RolloutResult
 from graspgen.sim.warp_backend import WARP_PROTOCOLS, WarpLiftSimulator, WarpParams, warp_versions
 from graspgen.validation import check, check_choice
@@ -114,16 +114,7 @@ class Simulator:
 
 def _batch(T_world_tcp, widths, target_body) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """The arguments of :meth:`Simulator.rollouts` checked: ``(T (n, 4, 4), widths (n,), bodies (n,))``."""
-    T = np.asarray(T_world_tcp, dtype=float)
-    if T.ndim != 3 or T.shape[1:] != (4, 4):
-        raise SettingsError(f"T_world_tcp: expected (n, 4, 4) poses, got shape {T.shape}")
-    widths = np.asarray(widths, dtype=float).reshape(-1)
-    if len(widths) != len(T) or not (np.isfinite(widths).all() and (widths >= 0).all()):
-        raise SettingsError(f"widths: expected {len(T)} finite widths >= 0 m, got {widths.tolist()[:8]}")
-    bodies = [target_body] * len(T) if isinstance(target_body, str) else list(target_body)
-    if len(bodies) != len(T):
-        raise SettingsError(f"target_body: expected a body name or {len(T)} of them, got {len(bodies)}")
-    return T, widths, bodies
+    return batch_arguments(T_world_tcp, widths, target_body, widths_needed_by="Simulator.rollouts")
 
 
 class CpuSimulator(Simulator):

@@ -43,6 +43,7 @@ import numpy as np
 
 from graspgen.errors import MissingDependencyError, SettingsError, SimulationError
 from graspgen.sim.lift import LiftSimulator
+from graspgen.sim.lift_rules import batch_arguments
 from graspgen.sim.poses_mj import pos_quat
 from graspgen.sim.protocol_phases import ROLLOUT_PROTOCOLS
 from graspgen.sim.protocols import LiftParams, RolloutResult
@@ -265,19 +266,8 @@ class WarpLiftSimulator:
         list of RolloutResult
             As :meth:`LiftSimulator.rollout` returns, per grasp.
         """
-        T = np.asarray(T_world_tcp, dtype=float)
-        if T.ndim != 3 or T.shape[1:] != (4, 4):
-            raise SettingsError(f"T_world_tcp: expected (n, 4, 4) poses, got shape {T.shape}")
-        if self.run.widths:
-            if widths is None:
-                raise SettingsError(f"widths: the {self.params.protocol} protocol needs one pad separation (m) per "
-                                    "grasp, got None")
-            widths = np.asarray(widths, dtype=float).reshape(-1)
-            if len(widths) != len(T) or not (np.isfinite(widths).all() and (widths >= 0).all()):
-                raise SettingsError(f"widths: expected {len(T)} finite widths >= 0 m, got {widths.tolist()[:8]}")
-        bodies = [target_body] * len(T) if isinstance(target_body, str) else list(target_body)
-        if len(bodies) != len(T):
-            raise SettingsError(f"target_body: expected a body name or {len(T)} of them, got {len(bodies)}")
+        needed_by = f"the {self.params.protocol} protocol" if self.run.widths else None
+        T, widths, bodies = batch_arguments(T_world_tcp, widths, target_body, widths_needed_by=needed_by)
         results: list[RolloutResult | None] = [None] * len(T)
         pending: list[tuple[int, dict]] = []
         t0 = time.perf_counter()
