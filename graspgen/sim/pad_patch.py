@@ -1,12 +1,15 @@
-"""The patch of a pad's face that a grasped object covers, and the torsional friction arm of that patch.
+"""The patch of a pad's face that a grasped object presses, and the torsional friction arm of that patch.
 
-A flat pad pressed on an object resists a moment about its normal of ``mu F r_mean``, ``r_mean`` the mean distance
-of the pressed patch from its centroid (uniform pressure; Howe & Cutkosky 1996). Which patch: the part of the pad's
-face that the object's surface reaches, measured in the simulation itself once the jaws have closed. A grid of rays
-starts behind each face (inside the pad) and runs along the face's inward normal; a cell is pressed when the target
-is hit no further than the face, that is, where the object's surface meets or enters the pad. A pinch of an edge
-with little overlap then carries little torsion, a flat face covering the pad the whole face's
-(docs/decisions/2026-12-07-pad-patch-torsion.md).
+A flat pad pressed on an object resists a moment about its normal of ``mu F r``, ``r`` the pressure-weighted mean
+distance of the patch from its pressure centre (Howe & Cutkosky 1996; uniform pressure on the whole face gives the
+face's closed form :func:`rectangle_arm`). The pressure comes from an elastic foundation (Johnson 1985, 5.9): the
+pad is a bed of springs, each pressed by how far the object's surface reaches past the line where the pad is
+indented ``w`` deep, ``p ~ (w - h)+``, ``h`` the gap between the face and the object above its deepest point. ``w``
+is the gripper contact's own compliance width (solimp ``width``, 1 mm), read from the compiled model. The gaps are
+measured in the simulation itself once the jaws have closed: a grid of rays starts behind each face (inside the pad)
+and runs along the face's inward normal to the target. A pinch of an edge with little overlap then carries little
+torsion, a flat face covering the pad the whole face's, and a line contact on a curved surface a strip whose width
+follows the curvature, not the grid (docs/decisions/2026-12-07-pad-patch-torsion.md).
 
 The face of each pad is the box site ``<prefix><side>_face`` that :func:`graspgen.sim.gripper_model.build_gripper`
 puts at the pad's contact face (half sizes: ``(0, width / 2, length / 2)`` of ``GripperSpec.pad_size``).
@@ -21,12 +24,14 @@ import numpy as np
 
 from graspgen.errors import SettingsError
 
-__all__ = ["PATCH_CELLS", "PadPatch", "PatchTorsion", "face_grid", "rectangle_arm"]
+__all__ = ["PATCH_CELLS", "PadPatch", "PatchTorsion", "face_grid", "foundation_pressure", "rectangle_arm"]
 
 PATCH_CELLS = 12
 """Rays per side of the face grid (12 x 12 = 144 per pad; a cell of the Panda's 17.4 x 17.6 mm face is 1.5 mm)."""
 _BEHIND = 0.005
 """Where the rays start (m) behind the face: deeper than a pressed pad's penetration (0.1-0.3 mm)."""
+_SOLIMP_WIDTH = 2
+"""Index of ``width`` in a geom's solimp."""
 
 
 def rectangle_arm(p: float, q: float) -> float:
@@ -44,8 +49,35 @@ def face_grid(cells: int = PATCH_CELLS) -> np.ndarray:
     return np.stack([a.ravel(), b.ravel()], axis=1)
 
 
-def _mean_radius(points: np.ndarray) -> float:
-    return float(np.linalg.norm(points - points.mean(axis=0), axis=1).mean())
+def _mean_radius(points: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """Weighted mean distance of ``points`` ``(n, 2)`` from their weighted centroid (uniform without ``weights``)."""
+    w = np.ones(len(points)) if weights is None else weights
+    centre = w @ points / w.sum()
+    return float(w @ np.linalg.norm(points - centre, axis=1) / w.sum())
+
+
+def foundation_pressure(gaps: np.ndarray, width: float) -> np.ndarray:
+    """Elastic-foundation pressure of a pad on an object, up to a factor: ``(width - (gap - min gap))+``.
+
+    Parameters
+    ----------
+    gaps : (n,) float
+        Gap (m) from each cell of the face to the object along the face's inward normal, negative where the object
+        is inside the pad, ``inf`` where the object is not there.
+    width : float
+        Indentation (m) of the pad at its deepest point.
+
+    Returns
+    -------
+    (n,) float
+        Zero everywhere when every gap is ``inf``.
+    """
+    out = np.zeros(len(gaps))
+    finite = np.isfinite(gaps)
+    if not finite.any():
+        return out
+    out[finite] = np.maximum(width - (gaps[finite] - gaps[finite].min()), 0.0)
+    return out
 
 
 class PadPatch:
@@ -54,16 +86,18 @@ class PadPatch:
     Parameters
     ----------
     model
-        The compiled scene; ``site`` its face site's id.
+        The compiled scene; ``site`` its face site's id; ``geom`` the pad geom, whose solimp width is the pad's
+        indentation (:func:`foundation_pressure`).
     inward
         ``+1`` when the face's inward normal (towards the other pad) is the site's +x axis, ``-1`` for -x.
     exclude_group
         Geom group of the gripper's own geoms, which the rays pass through.
     """
 
-    def __init__(self, model: mujoco.MjModel, site: int, inward: float, exclude_group: int,
+    def __init__(self, model: mujoco.MjModel, site: int, geom: int, inward: float, exclude_group: int,
                  cells: int = PATCH_CELLS) -> None:
         self.site = int(site)
+        self.geom = int(geom)
         self.inward = float(inward)
         half = np.asarray(model.site_size[site], dtype=float)
         grid = face_grid(cells)
@@ -78,25 +112,49 @@ class PadPatch:
         self._groups[exclude_group] = 0
         self._geomid = np.zeros(1, dtype=np.int32)
 
-    def pressed(self, model: mujoco.MjModel, data: mujoco.MjData, target: int) -> np.ndarray:
-        """``(cells**2,) bool``: the cells whose ray meets body ``target``'s geoms at or before the face."""
+    def gaps(self, model: mujoco.MjModel, data: mujoco.MjData, target: int) -> np.ndarray:
+        """``(cells**2,) float``: gap (m) from each cell of the face to body ``target``'s surface along the inward
+        normal (negative inside the pad); ``inf`` where the ray meets nothing, or another body first, within
+        :data:`_BEHIND` past the face."""
         R = data.site_xmat[self.site].reshape(3, 3)
         origins = data.site_xpos[self.site] + self._local @ R.T
         direction = self.inward * R[:, 0]
-        hit = np.zeros(len(origins), dtype=bool)
+        gaps = np.full(len(origins), np.inf)
         for k, origin in enumerate(origins):
             dist = mujoco.mj_ray(model, data, origin, direction, self._groups, 0, -1, self._geomid)
             g = int(self._geomid[0])
-            hit[k] = 0.0 <= dist <= _BEHIND and g >= 0 and model.body_rootid[model.geom_bodyid[g]] == target
-        return hit
+            if 0.0 <= dist <= 2.0 * _BEHIND and g >= 0 and model.body_rootid[model.geom_bodyid[g]] == target:
+                gaps[k] = dist - _BEHIND
+        return gaps
+
+    def touches(self, model: mujoco.MjModel, data: mujoco.MjData, target: int) -> bool:
+        """Whether the pad geom is in contact with a geom of body ``target`` (``data``'s contact list)."""
+        roots = model.body_rootid[model.geom_bodyid]
+        for c in data.contact[:data.ncon]:
+            if c.geom1 == self.geom and roots[c.geom2] == target or c.geom2 == self.geom and roots[c.geom1] == target:
+                return True
+        return False
+
+    def pressure(self, model: mujoco.MjModel, data: mujoco.MjData, target: int) -> np.ndarray:
+        """``(cells**2,) float``: :func:`foundation_pressure` of the cells (m of indentation), at the pad geom's
+        solimp width read now; zero where the pad does not touch the target. The deepest point, not the face site,
+        is the reference, since the site and the pad's collision surface may differ by a fraction of a mm."""
+        if not self.touches(model, data, target):
+            return np.zeros(len(self._local))
+        return foundation_pressure(self.gaps(model, data, target), float(model.geom_solimp[self.geom, _SOLIMP_WIDTH]))
+
+    def pressed(self, model: mujoco.MjModel, data: mujoco.MjData, target: int) -> np.ndarray:
+        """``(cells**2,) bool``: the cells under pressure."""
+        return self.pressure(model, data, target) > 0.0
 
     def arm(self, model: mujoco.MjModel, data: mujoco.MjData, target: int) -> float:
-        """Torsional arm (m) of the pressed patch: :attr:`face_arm` scaled by the patch's mean radius over the whole
-        grid's (so a face fully covered gets exactly :attr:`face_arm`); 0 without a pressed cell or with one."""
-        hit = self.pressed(model, data, target)
-        if hit.sum() < 2:
+        """Torsional arm (m) of the pressed patch: :attr:`face_arm` scaled by the patch's pressure-weighted mean
+        radius over the whole grid's (so a face fully and evenly pressed gets exactly :attr:`face_arm`); 0 with
+        fewer than two cells under pressure."""
+        p = self.pressure(model, data, target)
+        if (p > 0.0).sum() < 2:
             return 0.0
-        return self.face_arm * _mean_radius(self._local[hit, 1:]) / self._grid_arm
+        return self.face_arm * _mean_radius(self._local[:, 1:], p) / self._grid_arm
 
 
 class PatchTorsion:
@@ -121,7 +179,7 @@ class PatchTorsion:
             if site < 0 or geom < 0:
                 raise SettingsError(f"model: no pad face site {prefix}{side}_face or pad geom {prefix}{side}_pad "
                                     "(pad_torsion 'patch' needs a gripper built by graspgen.sim.build_gripper)")
-            self.pads.append((geom, PadPatch(model, site, inward, exclude_group)))
+            self.pads.append((geom, PadPatch(model, site, geom, inward, exclude_group)))
         pad_geom = self.pads[0][0]
         touches_pads = ((model.geom_contype & model.geom_conaffinity[pad_geom]) != 0) | (
             (model.geom_conaffinity & model.geom_contype[pad_geom]) != 0)

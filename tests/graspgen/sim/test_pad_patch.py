@@ -10,7 +10,7 @@ import pytest
 
 from graspgen.grippers import load_gripper
 from graspgen.sim.gripper_model import GRIPPER_GEOM_GROUP, attach_gripper, pad_torsion_arm
-from graspgen.sim.pad_patch import PadPatch, PatchTorsion, face_grid, rectangle_arm
+from graspgen.sim.pad_patch import PATCH_CELLS, PadPatch, PatchTorsion, face_grid, foundation_pressure, rectangle_arm
 from graspgen.sim.physics import physics_options
 
 pytestmark = pytest.mark.usefixtures("no_mujoco_log_in_repo")
@@ -42,7 +42,23 @@ def test_face_grid_covers_unit_square():
     assert g.min() == pytest.approx(-0.375) and g.max() == pytest.approx(0.375)
 
 
-def _world(block_half, block_pos, *, other=None):
+def test_foundation_pressure_is_the_indentation_above_the_deepest_point():
+    gaps = np.array([-2e-4, 3e-4, 8e-4, 1.5e-3, np.inf])
+    np.testing.assert_allclose(foundation_pressure(gaps, 1e-3), [1e-3, 5e-4, 0.0, 0.0, 0.0], atol=1e-15)
+    assert not foundation_pressure(np.full(3, np.inf), 1e-3).any()
+
+
+def _slow_foundation_arm(gap, p: float, q: float, width: float, n: int = 600) -> float:
+    """Reference: pressure-weighted mean radius of ``(width - gap(y, z))+`` on a fine grid of the face."""
+    u = (np.arange(n) + 0.5) / n - 0.5
+    y, z = np.meshgrid(u * 2 * p, u * 2 * q, indexing="ij")
+    w = np.maximum(width - gap(y, z), 0.0).ravel()
+    pts = np.stack([y.ravel(), z.ravel()], axis=1)
+    c = w @ pts / w.sum()
+    return float(w @ np.linalg.norm(pts - c, axis=1) / w.sum())
+
+
+def _world(block_half, block_pos, *, other=None, cylinder=None):
     """The Panda, open, its TCP at the origin (x closing, z approach along world z), a free box ``target`` of half
     sizes ``block_half`` at ``block_pos``, and optionally a second free box ``other`` (half sizes, position)."""
     spec = mujoco.MjSpec()
@@ -53,7 +69,10 @@ def _world(block_half, block_pos, *, other=None):
         half, pos = block
         body = spec.worldbody.add_body(name=name, pos=list(pos))
         body.add_freejoint()
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half), mass=0.1, friction=[0.5, 0, 0])
+        if cylinder is not None and name == "target":  # (radius, half length), its axis along z
+            body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[*cylinder, 0.0], mass=0.1, friction=[0.5, 0, 0])
+        else:
+            body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=list(half), mass=0.1, friction=[0.5, 0, 0])
     attach_gripper(spec, PANDA)
     model = spec.compile()
     data = mujoco.MjData(model)
@@ -61,9 +80,10 @@ def _world(block_half, block_pos, *, other=None):
     return model, data
 
 
-def _left(model) -> PadPatch:
+def _left(model, cells: int = PATCH_CELLS) -> PadPatch:
     site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "gripper/left_face")
-    return PadPatch(model, site, 1.0, GRIPPER_GEOM_GROUP)
+    geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "gripper/left_pad")
+    return PadPatch(model, site, geom, 1.0, GRIPPER_GEOM_GROUP, cells=cells)
 
 
 def _target(model) -> int:
@@ -115,7 +135,7 @@ def test_a_gap_or_another_body_presses_nothing():
     assert not _left(model).pressed(model, data, target).any()
 
 
-def test_a_turned_block_presses_a_strip():
+def test_a_turned_block_presses_a_wedge_of_the_face():
     model, data = _world((0.02, 0.05, 0.05), (0.0, 0.0, 0.0))
     # turned 10 degrees about z: its -x face crosses the pad's face at y_cut, 3 mm inside the +y edge, and is in
     # front of the face (a gap) below y_cut, pressed into it above
@@ -126,10 +146,35 @@ def test_a_turned_block_presses_a_strip():
     data.qpos[:7] = [f0x + 0.02 * math.cos(a), 0.0, 0.0, math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)]
     mujoco.mj_forward(model, data)
     patch = _left(model)
-    hit = patch.pressed(model, data, _target(model)).reshape(12, 12)  # rows: y, columns: z
-    assert hit[-2:].all() and not hit[:-2].any()  # the two rows of cells past y_cut (1.45 mm each)
+    target = _target(model)
     p, q = PANDA.pad_size[1] / 2, PANDA.pad_size[2] / 2
-    assert patch.arm(model, data, _target(model)) == pytest.approx(rectangle_arm(p / 6, q), rel=0.1)
+    y = face_grid(PATCH_CELLS)[:, 0] * 2 * p
+    np.testing.assert_allclose(patch.gaps(model, data, target), -math.tan(a) * (y - y_cut), atol=1e-7)
+    width = float(model.geom_solimp[patch.geom, 2])
+    assert width == pytest.approx(1e-3)
+    pressed = patch.pressed(model, data, target).reshape(PATCH_CELLS, PATCH_CELLS)  # rows: y, columns: z
+    rows = math.ceil(width / math.tan(a) / (2 * p / PATCH_CELLS))  # the rows within 5.7 mm of the deepest one
+    assert pressed[-rows:].all() and not pressed[:-rows].any()
+    reference = _slow_foundation_arm(lambda yy, zz: math.tan(a) * (p - yy), p, q, width)
+    assert patch.arm(model, data, target) == pytest.approx(reference, rel=0.08)
+
+
+@pytest.mark.parametrize("radius, offset", [(0.02, 0.0), (0.02, 4e-4), (0.05, 0.0), (0.008, 0.0)])
+def test_a_cylinder_presses_a_strip_whose_width_follows_its_curvature(radius, offset):
+    """A line contact along the pad: the strip is narrower than a cell of the rigid surfaces' patch would be, and the
+    arm is the same at 12 and at 36 cells a side and matches the fine-grid reference (not the grid's resolution)."""
+    model, data = _world(None, (0.0, 0.0, 0.0), cylinder=(radius, 0.05))
+    data.qpos[:3] = [_face_x(model, data) + radius - 2e-4, offset, 0.0]
+    mujoco.mj_forward(model, data)
+    target = _target(model)
+    p, q = PANDA.pad_size[1] / 2, PANDA.pad_size[2] / 2
+    width = 1e-3
+    coarse, fine = _left(model).arm(model, data, target), _left(model, cells=36).arm(model, data, target)
+    reference = _slow_foundation_arm(
+        lambda yy, zz: radius - np.sqrt(np.maximum(radius ** 2 - (yy - offset) ** 2, 0.0)), p, q, width)
+    assert fine == pytest.approx(reference, rel=0.03)
+    assert coarse == pytest.approx(reference, rel=0.06)
+    assert 0.4 * pad_torsion_arm(PANDA) < coarse < pad_torsion_arm(PANDA)  # a strip: less than the face
 
 
 def test_patch_torsion_moves_the_torsion_from_objects_to_pads():
@@ -187,4 +232,4 @@ def test_a_rollout_does_not_see_the_one_before():
     sim.rollout(centre, 0.04, "obj/0_box")
     after_centre = sim.model.geom_friction[pads, 1]
     assert (after_edge < after_centre).all()  # the edge pinch's patch is smaller than the middle's
-    np.testing.assert_allclose(after_centre, 0.5 * pad_torsion_arm(PANDA), rtol=1e-9)
+    np.testing.assert_allclose(after_centre, 0.5 * pad_torsion_arm(PANDA), rtol=0.02)  # flat on flat, squeezed
