@@ -116,7 +116,8 @@ def baseline(name: str, n: int, params: ObjectGraspsParams) -> dict:
     record = prepare(name)
     every = ObjectGraspsParams(**{**{f: getattr(params, f) for f in ("gripper", "protocol", "friction")},
                                   "selection": "balanced", "target_positives": n, "target_negatives": n,
-                                  "max_candidates": n, "collision_share": 1.0})  # every candidate, collisions too
+                                  "max_candidates": n,
+                                  "collision_share_of_negatives": 1.0})  # every candidate, collisions too
     c0 = time.process_time()
     table, meta = label_object_grasps(record, every, np.random.default_rng(1))
     ours_cpu = time.process_time() - c0

@@ -134,30 +134,52 @@ def calibration_default() -> Path:
     return (Path(env) if env else ROOT.parent / "shared" / "calibration") / "acronym_more"
 
 
-def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def add_device_arguments(ap: argparse.ArgumentParser, calibration_use: str = "") -> None:
+    """``--device`` and ``--calibration``, the first options of every Warp measurement (this benchmark and
+    ``studies/warp_agreement.py``); ``calibration_use`` ends the latter's help (what the command does with it)."""
     ap.add_argument("--device", default=None, help="Warp device (default: cuda:0 if present, else cpu)")
     default = calibration_default()
     ap.add_argument("--calibration", type=Path, default=default,
                     help=f"calibration folder (default: ${CALIBRATION_ENV}, else ../shared/calibration beside the "
-                    f"repository, its acronym_more/; now {default}); its first ACRONYM file is tiled")
+                    f"repository, its acronym_more/; now {default}){calibration_use}")
+
+
+def add_cache_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--kernel-cache`` (read by :func:`start_warp`) and ``--cache-dir`` (the CoACD cache :func:`worlds` uses)."""
+    ap.add_argument("--kernel-cache", type=Path, default=None, help="Warp kernel cache folder (empty: cold)")
+    ap.add_argument("--cache-dir", type=Path, default=ROOT / ".cache", help="CoACD cache (as run.cache_dir)")
+
+
+def start_warp(kernel_cache: Path | str | None):
+    """Warp imported and initialised, its kernels cached in ``kernel_cache`` when given (else Warp's own folder)."""
+    wp, _ = import_warp()
+    if kernel_cache is not None:
+        wp.config.kernel_cache_dir = str(kernel_cache)
+    wp.init()
+    return wp
+
+
+def pick_device(wp, device: str | None) -> str:
+    """``device`` (``--device``), else the first CUDA GPU, else Warp's CPU device."""
+    return device or ("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_device_arguments(ap, "; its first ACRONYM file is tiled")
     ap.add_argument("--protocols", default=",".join(WARP_PROTOCOLS))
     ap.add_argument("--batches", default=None, help=f"nworld sweep (default {GPU_BATCHES} on a GPU, {CPU_BATCHES} "
                     "on the CPU device)")
     ap.add_argument("--speed-grasps", type=int, default=100, help="grasps of the first file tiled in the sweep")
-    ap.add_argument("--kernel-cache", type=Path, default=None, help="Warp kernel cache folder (empty: cold)")
-    ap.add_argument("--cache-dir", type=Path, default=ROOT / ".cache", help="CoACD cache (as run.cache_dir)")
+    add_cache_arguments(ap)
     ap.add_argument("--out", type=Path, default=RESULTS, help="the JSON written (e.g. $OUT/bench_warp.json)")
     return ap
 
 
 def main() -> None:
     args = _parser().parse_args()
-    wp, _ = import_warp()
-    if args.kernel_cache is not None:
-        wp.config.kernel_cache_dir = str(args.kernel_cache)
-    wp.init()
-    device = args.device or ("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
+    wp = start_warp(args.kernel_cache)
+    device = pick_device(wp, args.device)
     gpu = wp.get_device(device).is_cuda
     batches = [int(b) for b in (args.batches or (GPU_BATCHES if gpu else CPU_BATCHES)).split(",")]
     first = sorted(args.calibration.glob("*.h5"))[:1]

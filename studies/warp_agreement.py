@@ -38,8 +38,19 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.bench_warp import CALIBRATION_ENV, LEARN, ROOT, calibration_default, run_cpu, run_warp, subset, worlds
-from graspgen.sim.warp_backend import WARP_PROTOCOLS, WarpParams, import_warp
+from bench.bench_warp import (
+    LEARN,
+    ROOT,
+    add_cache_arguments,
+    add_device_arguments,
+    pick_device,
+    run_cpu,
+    run_warp,
+    start_warp,
+    subset,
+    worlds,
+)
+from graspgen.sim.warp_backend import WARP_PROTOCOLS, WarpParams
 
 RESULTS = ROOT / "studies" / "results_warp_agreement.json"
 
@@ -126,10 +137,7 @@ def object_row(path: Path, grasps: int, protocol: str, flip: bool, device: str, 
 def _worker(spec_path: Path) -> None:
     """The child of :func:`run_object`: one object's row, written to the spec's ``out``."""
     spec = json.loads(spec_path.read_text())
-    wp, _ = import_warp()
-    if spec["kernel_cache"] is not None:
-        wp.config.kernel_cache_dir = spec["kernel_cache"]
-    wp.init()
+    start_warp(spec["kernel_cache"])
     row = object_row(Path(spec["path"]), spec["grasps"], spec["protocol"], spec["flip"], spec["device"],
                      spec["nworld"], Path(spec["cache"]))
     tmp = Path(spec["out"] + ".tmp")
@@ -227,11 +235,7 @@ def calibration_files(args) -> list[tuple[Path, int]]:
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--device", default=None, help="Warp device (default: cuda:0 if present, else cpu)")
-    default = calibration_default()
-    ap.add_argument("--calibration", type=Path, default=default,
-                    help=f"calibration folder (default: ${CALIBRATION_ENV}, else ../shared/calibration beside the "
-                    f"repository, its acronym_more/; now {default})")
+    add_device_arguments(ap)
     ap.add_argument("--objects", type=int, default=5, help="calibration ACRONYM files (sorted) used for the agreement")
     ap.add_argument("--grasps", type=int, default=100, help="evenly spaced grasps per calibration file")
     ap.add_argument("--learn", type=Path, default=LEARN, help="folder of the learning set's ACRONYM files")
@@ -243,8 +247,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--protocols", default=",".join(WARP_PROTOCOLS))
     ap.add_argument("--agreement-worlds", type=int, default=None, help="nworld of the agreement runs (default: "
                     "1024 on a GPU, 256 on the CPU device)")
-    ap.add_argument("--kernel-cache", type=Path, default=None, help="Warp kernel cache folder (empty: cold)")
-    ap.add_argument("--cache-dir", type=Path, default=ROOT / ".cache", help="CoACD cache (as run.cache_dir)")
+    add_cache_arguments(ap)
     ap.add_argument("--out", type=Path, default=RESULTS, help="the JSON written")
     ap.add_argument("--resume", action="store_true", help="keep the objects --out already holds (crashed ones are "
                     "tried again) and add the rest")
@@ -258,11 +261,8 @@ def main() -> None:
     if args.worker is not None:
         _worker(args.worker)
         return
-    wp, _ = import_warp()
-    if args.kernel_cache is not None:
-        wp.config.kernel_cache_dir = str(args.kernel_cache)
-    wp.init()
-    device = args.device or ("cuda:0" if wp.get_cuda_device_count() > 0 else "cpu")
+    wp = start_warp(args.kernel_cache)
+    device = pick_device(wp, args.device)
     agree_worlds = args.agreement_worlds or (1024 if wp.get_device(device).is_cuda else 256)
     files = calibration_files(args)
     out: dict = json.loads(args.out.read_text()) if args.resume and args.out.exists() else {"protocols": {}}

@@ -6,10 +6,11 @@ object frame), rolls out grasp candidates on it in free space and keeps some of 
 * ``natural`` (default): antipodal candidates only, each kept whatever its outcome, until ``target_grasps`` that
   do not collide at placement are kept or ``max_candidates`` were tried; a collision at placement (outcomes 0-2:
   the open hand intersects the object) is kept as a negative while the kept collisions stay within
-  ``collision_share`` of the kept negatives, and counted and dropped otherwise. The set is the sampler's
-  contact-making distribution, labelled: ACRONYM's convention, and what a grasp evaluator meets when it scores a
-  planner's candidates. Its positive rate (``meta["positive_rate"]``) is the natural one; a balanced view is the
-  trainer's business (the probe draws balanced batches). Why: docs/decisions/2026-12-07-natural-object-sets.md.
+  ``collision_share_of_negatives`` (a share of the kept negatives), and counted and dropped otherwise. The set is
+  the sampler's contact-making distribution, labelled: ACRONYM's convention, and what a grasp evaluator meets when
+  it scores a planner's candidates. Its positive rate (``meta["positive_rate"]``) is the natural one; a balanced
+  view is the trainer's business (the probe draws balanced batches). Why:
+  docs/decisions/2026-12-07-natural-object-sets.md.
 * ``balanced``: until ``target_positives`` positives and ``target_negatives`` failures are kept, as below.
 
 The ``balanced`` loop (steps 1-2 below describe it; ``natural`` uses step 1 without near misses and step 2's
@@ -56,12 +57,13 @@ rollouts):
    object's weight). Both open the jaws to the protocol's ``open_width`` (fully by default), whatever the grasp's
    width (the ``open_width`` column). Candidates are rolled out one by one in trial order; a success is kept while
    fewer than ``target_positives`` successes are kept, a failure while fewer than ``target_negatives`` failures
-   are (a collision at placement, outcomes 0-2, only while collisions are fewer than ``collision_share`` of
-   ``target_negatives``), and the loop stops when both targets are met or ``max_candidates`` rollouts were made.
-   "Success" is the ``label`` setting's: ``held`` (default: outcome 5, the object still between the fingers,
-   ACRONYM's label, so the set is what it was before the firm label existed) or ``firm`` (outcome 5 with the
-   object's motion in the hand within the firm-hold tolerances, :mod:`graspgen.sim.lift`; held-but-not-firm
-   grasps are then negatives). Both labels are in every row (``success``, ``firm``).
+   are (a collision at placement, outcomes 0-2, only while collisions are fewer than
+   ``collision_share_of_negatives`` of ``target_negatives``), and the loop stops when both targets are met or
+   ``max_candidates`` rollouts were made. "Success" is the ``label`` setting's: ``held`` (default: outcome 5, the
+   object still between the fingers, ACRONYM's label, so the set is what it was before the firm label existed) or
+   ``firm`` (outcome 5 with the object's motion in the hand within the firm-hold tolerances,
+   :mod:`graspgen.sim.lift`; held-but-not-firm grasps are then negatives). Both labels are in every row
+   (``success``, ``firm``).
 
 3. **Labels per kept row**: the rollout's outcome, ACRONYM's four motion measures, the finger contacts at the end of
    closing in the object frame (mapped with the object's pose when closing ended, so exactly), the Ferrari-Canny
@@ -233,7 +235,7 @@ class _Search:
     collisions: int = 0
     """Collisions at placement kept (as negatives)."""
     dropped: int = 0
-    """``natural``: collisions at placement not kept (over ``collision_share`` of the negatives)."""
+    """``natural``: collisions at placement not kept (over ``collision_share_of_negatives``)."""
     stopped: str = "max_candidates"
     good_pose: list[np.ndarray] = dataclasses.field(default_factory=list)
     """The antipodal candidates that succeeded (the near misses' parents): TCP poses, widths, depths."""
@@ -273,9 +275,9 @@ class _Search:
 
     def _record_natural(self, kind: str, T: np.ndarray, w: float, result: RolloutResult) -> None:
         """``natural``: keep every rollout that does not collide at placement, whatever its outcome, and a collision
-        while the kept collisions stay within ``collision_share`` of the kept negatives."""
+        while the kept collisions stay within ``collision_share_of_negatives`` (a share of the kept negatives)."""
         if result.code <= Outcome.COLLISION_WITH_CLUTTER:
-            if self.collisions + 1 > self.params.collision_share * (self.negatives + 1):
+            if self.collisions + 1 > self.params.collision_share_of_negatives * (self.negatives + 1):
                 self.dropped += 1
                 return
             self.collisions += 1
@@ -458,7 +460,7 @@ def label_object_grasps(record: ObjectRecord, params: ObjectGraspsParams,
     simulator, body = free_space_simulator(record, params.gripper, params.lift, friction, params.backend, warp)
     mesh = trimesh.Trimesh(np.asarray(record.vertices, dtype=np.float64), np.asarray(record.faces), process=False)
     pool = CandidatePool(mesh, gripper, params.sampler, rng)
-    search = _Search(params, collision_cap(params.collision_share, params.target_negatives or 0))
+    search = _Search(params, collision_cap(params.collision_share_of_negatives, params.target_negatives or 0))
     _search(search, simulator, body, pool, gripper, overhang, tilt, rng)
 
     success_rows = [j for j, (_, _, _, r) in enumerate(search.kept) if params.positive(r)]

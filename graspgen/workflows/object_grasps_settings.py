@@ -17,7 +17,8 @@ from graspgen.sim.protocols import PROTOCOL_KEYS, LiftParams, Outcome, RolloutRe
 from graspgen.sim.simulator import check_backend
 from graspgen.sim.warp_backend import KEY_OMIT_DEFAULT, WarpParams
 from graspgen.validation import check, check_choice, check_instance, check_int, check_number
-from shared_utils.keys import KEY_VALUES
+from shared_utils.keys import KEY_NAME, KEY_VALUES
+from shared_utils.renames import RENAMED_FROM
 
 __all__ = ["LABELS", "PROTOCOLS", "SELECTIONS", "ObjectGraspsParams", "default_overhang", "default_tilt",
            "free_space_sampler", "protocol_opening"]
@@ -45,7 +46,7 @@ class ObjectGraspsParams:
     ``graspdatagen`` (close, then five tugs at the object's weight; GraspDataGen's test). It sets ``lift.protocol``."""
     selection: str = "natural"
     """Which rollouts are kept. ``natural`` (default): every candidate that does not collide at placement (outcomes 3-5)
-    until ``target_grasps``, plus collisions within ``collision_share`` of the negatives, as ACRONYM keeps its poses.
+    until ``target_grasps``, plus collisions within ``collision_share_of_negatives``, as ACRONYM keeps its poses.
     ``balanced``: ``target_positives`` and ``target_negatives`` with near misses. Why natural:
     docs/decisions/2026-12-07-natural-object-sets.md."""
     target_grasps: int = 800
@@ -59,10 +60,14 @@ class ObjectGraspsParams:
     null: 1000. Unset with ``natural``."""
     max_candidates: int = 20000
     """Most rollouts per object; the loop stops here even when a target is not met (a warning says so)."""
-    collision_share: float = 0.25
+    # Was ``collision_share`` (the name ``grasps`` keeps for a share of all rows): a config that writes it here is
+    # told the new name, and keys and seeds hash the former one, so sets made before keep their keys and draws.
+    collision_share_of_negatives: float = dataclasses.field(
+        default=0.25, metadata={RENAMED_FROM: ("collision_share",), KEY_NAME: "collision_share"})
     """Largest share of the kept negatives that may be collisions at placement (outcomes 0-2), in [0, 1]; 1 keeps
     failures as they come. Some are kept because a grasp model must rank a planner's colliding candidates last; capped
-    because they teach nothing of what holds."""
+    because they teach nothing of what holds. (``grasps.collision_share`` is a share of all of a scene object's
+    rows.)"""
     batch_size: int = 128
     """Candidates sampled per batch (antipodal plus near misses, in a shuffled order)."""
     near_miss_fraction: float = 0.3
@@ -124,8 +129,8 @@ class ObjectGraspsParams:
         if self.selection == "balanced":
             check("target_negatives", self.target_positives + self.target_negatives > 0,
                   "be > 0 when target_positives is 0 (nothing to keep)", self.target_negatives)
-        object.__setattr__(self, "collision_share", check_number("collision_share", self.collision_share,
-                                                                 low=0.0, high=1.0))
+        object.__setattr__(self, "collision_share_of_negatives", check_number(
+            "collision_share_of_negatives", self.collision_share_of_negatives, low=0.0, high=1.0))
         for key in ("max_candidates", "batch_size"):
             object.__setattr__(self, key, check_int(key, getattr(self, key), low=1))
         object.__setattr__(self, "near_miss_fraction", check_number(

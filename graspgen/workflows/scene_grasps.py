@@ -73,7 +73,8 @@ class GraspsParams:
     collision_share: float = 0.2
     """Largest share (in [0, 1)) of an object's rows that are pre-filter collisions: with ``k`` free candidates
     kept, up to ``floor(collision_share / (1 - collision_share) * k)`` collisions, the first ones in trial order
-    (docs/operations.md, "Scene grasps"). Default 0.2: 12 free keep up to 3."""
+    (docs/operations.md, "Scene grasps"). Default 0.2: 12 free keep up to 3. A share of all the rows; the
+    object-centric sets' ``object_grasps.collision_share_of_negatives`` is one of the kept negatives."""
     max_candidates: int = 2000
     """Most candidates tried per object and scene (screened or pre-filtered); the loop stops here short of
     ``max_per_object`` with a warning."""

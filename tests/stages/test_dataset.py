@@ -269,7 +269,7 @@ def test_object_sets_are_the_stage_shards_one_after_the_other(run):
         assert o["positives"] == sum(rows.column("firm").to_pylist())
         assert o["positives"] + o["negatives"] == len(rows) and o["tried"] >= len(rows)
         assert sum(o["outcome_mix"].values()) == len(rows)
-        assert o["outcome_mix"]["collision"] <= cfg.object_grasps.collision_share * o["negatives"]
+        assert o["outcome_mix"]["collision"] <= cfg.object_grasps.collision_share_of_negatives * o["negatives"]
     md = (out / "dataset" / "card.md").read_text()
     assert "Selection: natural" in md and "Positives by the `firm` label" in md
     assert f"Outcome mix of the {len(got)} kept grasps: firm {sum(got.column('firm').to_pylist())} (" in md

@@ -67,6 +67,8 @@ def test_opening_and_approach_are_derived_from_the_rollouts():
         (["physics.timestep=0"], "physics.timestep: must be"),
         (["placed_grasps.protocol=acronym"], "placed_grasps.protocol: must be one of table"),
         (["rollouts.protocol=graspgen"], "rollouts.protocol: protocol 'graspgen' was renamed 'graspdatagen'"),
+        (["object_grasps.collision_share=0.5"], "object_grasps.collision_share: key 'collision_share' was renamed "
+                                                "'collision_share_of_negatives'"),
     ],
 )
 def test_bad_or_former_keys_name_the_key(sets, message):
@@ -83,3 +85,67 @@ def test_shown_config_loads_again(tmp_path):
     again = load_config(Config, path, [])
     assert again == cfg
     assert dataclasses.asdict(again.rollouts.lift) == dataclasses.asdict(cfg.rollouts.lift)
+
+
+# ------------------------------------------------------------------------------------------- one meaning per key name
+
+OBJECT_GRASPS_KEYS = {
+    # params_digest of the object_grasps stage's params when the key was still called collision_share (commit
+    # 93320c1): the defaults, and object_grasps.collision_share: 0.5.
+    0.25: "3e86f56838a6bdd9d400d2c93331d9e14461877c13dfd13227c540c1abed1156",
+    0.5: "9e6bfc41a7e933b3eecf3425643d1554b7c748ffdb6c462c604e72138599b88c",
+}
+
+
+def test_a_user_config_with_the_former_object_grasps_key_names_the_new_one(tmp_path):
+    """``object_grasps.collision_share`` (a share of the kept negatives) was renamed; ``grasps.collision_share`` (a
+    share of all rows) keeps its name: each name has one meaning."""
+    path = tmp_path / "old.yaml"
+    path.write_text("object_grasps:\n  collision_share: 0.5\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(Config, path, [])
+    assert str(err.value) == (f"{path}: object_grasps.collision_share: key 'collision_share' was renamed "
+                              "'collision_share_of_negatives'")
+
+
+def test_grasps_collision_share_keeps_its_name():
+    cfg = load_config(Config, None, ["grasps.collision_share=0.3", "object_grasps.collision_share_of_negatives=0.5"])
+    assert (cfg.grasps.collision_share, cfg.object_grasps.collision_share_of_negatives) == (0.3, 0.5)
+    with pytest.raises(ConfigError, match="grasps.collision_share_of_negatives: unknown key"):
+        load_config(Config, None, ["grasps.collision_share_of_negatives=0.3"])
+
+
+@pytest.mark.parametrize("share", sorted(OBJECT_GRASPS_KEYS))
+def test_the_rename_keeps_the_object_grasps_key_and_draws(share):
+    """The stage's params hash under the former name (content keys and seed keys both hash them): the same digest as
+    before the rename, for the default and a set value; the whole-config hash of the ``dataset`` task likewise."""
+    from pipeline.keys import canonical_json, params_digest
+    from stages.dataset import DatasetStage
+    from stages.object_grasps import ObjectGraspsStage
+
+    cfg = load_config(Config, None, [f"object_grasps.collision_share_of_negatives={share}"])
+    params = ObjectGraspsStage().params(cfg)
+    assert params_digest(params) == OBJECT_GRASPS_KEYS[share]
+    assert f'"collision_share":{share}' in canonical_json(params) and "of_negatives" not in canonical_json(params)
+    assert "of_negatives" not in canonical_json(DatasetStage().params(cfg))
+
+
+def test_config_show_writes_each_key_under_its_own_name(tmp_path, monkeypatch):
+    """``gen config show`` prints the new name under object_grasps and the kept one under grasps; a file with the
+    former key is one error line naming the new key."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from graspgen_cli.app import app
+
+    monkeypatch.chdir(tmp_path)
+    shown = CliRunner().invoke(app, ["config", "show", "--all", "--no-comments"])
+    assert shown.exit_code == 0, shown.output
+    cfg = yaml.safe_load(shown.output)
+    assert cfg["object_grasps"]["collision_share_of_negatives"] == 0.25 and cfg["grasps"]["collision_share"] == 0.2
+    assert "collision_share" not in cfg["object_grasps"] and "collision_share_of_negatives" not in cfg["grasps"]
+    (tmp_path / "old.yaml").write_text("object_grasps:\n  collision_share: 0.5\n")
+    failed = CliRunner().invoke(app, ["config", "show", "--config", "old.yaml"])
+    assert failed.exit_code == 2
+    assert failed.output.strip() == ("error: old.yaml: object_grasps.collision_share: key 'collision_share' was "
+                                     "renamed 'collision_share_of_negatives'")

@@ -19,6 +19,7 @@ from graspgen.workflows.object_grasps import label_object_grasps
 from graspgen.workflows.object_grasps_settings import ObjectGraspsParams
 from pipeline.config import load_config
 from pipeline.keys import canonical_json
+from shared_utils.keys import KEY_NAME
 from stages import object_grasps as stage_module
 from stages.config import Config
 
@@ -28,9 +29,10 @@ VERSIONS = {"mujoco-warp": "4.0.0", "warp-lang": "1.19.0"}
 
 
 def _without_backend(section: ObjectGraspsParams) -> str:
-    """The section's canonical JSON as it was before ``backend`` and ``warp`` existed (a renamed protocol hashed as
-    it was named then, :data:`shared_utils.keys.KEY_VALUES`)."""
-    plain = {f.name: getattr(section, f.name) for f in dataclasses.fields(section) if f.name not in ("backend", "warp")}
+    """The section's canonical JSON as it was before ``backend`` and ``warp`` existed (a renamed protocol or key
+    hashed as it was named then, :data:`shared_utils.keys.KEY_VALUES`, :data:`~shared_utils.keys.KEY_NAME`)."""
+    plain = {f.metadata.get(KEY_NAME, f.name): getattr(section, f.name) for f in dataclasses.fields(section)
+             if f.name not in ("backend", "warp")}
     plain["protocol"] = PROTOCOL_KEYS.get(section.protocol, section.protocol)
     return canonical_json(plain)
 

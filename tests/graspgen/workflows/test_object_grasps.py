@@ -246,15 +246,16 @@ def test_the_stage_runs_in_the_smoke_pipeline(tmp_path):
         assert positive.sum() == e.meta["positives"] and (~positive).sum() == e.meta["negatives"]
         collision = table.column("outcome").to_numpy() <= Outcome.COLLISION_WITH_CLUTTER
         assert (~collision).sum() <= og.target_grasps and e.meta["tried"] <= og.max_candidates
-        assert collision.sum() == e.meta["collision_negatives"] <= og.collision_share * e.meta["negatives"]
+        assert collision.sum() == e.meta["collision_negatives"] <= og.collision_share_of_negatives * e.meta["negatives"]
         assert set(table.column("object_name").to_pylist()) <= {e.task}
         assert bool(e.meta.get("warnings")) == (not e.meta["reached"])
 
 
 def test_collisions_fill_at_most_their_share_of_the_negatives(box):
-    """``collision_share`` caps the kept collisions (outcomes 0-2); the other failures are kept as they come.
-    Reference: every failure of the same 48 trials (nothing capped, targets out of reach), filtered by hand."""
-    every = label_object_grasps(box, params(max_candidates=48, collision_share=1.0), np.random.default_rng(3))[0]
+    """``collision_share_of_negatives`` caps the kept collisions (outcomes 0-2); the other failures are kept as they
+    come. Reference: every failure of the same 48 trials (nothing capped, targets out of reach), filtered by hand."""
+    every = label_object_grasps(box, params(max_candidates=48, collision_share_of_negatives=1.0),
+                                np.random.default_rng(3))[0]
     codes = every.column("outcome").to_numpy()
     failures = [i for i in range(len(codes)) if codes[i] != Outcome.SUCCESS]
     assert sum(codes[i] <= Outcome.COLLISION_WITH_CLUTTER for i in failures) >= 3, "need collisions to cap"
@@ -267,8 +268,8 @@ def test_collisions_fill_at_most_their_share_of_the_negatives(box):
                 continue
             collisions += 1
         expected.append(i)
-    capped, meta = label_object_grasps(box, params(max_candidates=48, target_negatives=8, collision_share=0.25),
-                                       np.random.default_rng(3))
+    capped, meta = label_object_grasps(
+        box, params(max_candidates=48, target_negatives=8, collision_share_of_negatives=0.25), np.random.default_rng(3))
     kept = capped.filter(np.asarray(capped.column("success").to_pylist()) == False)  # noqa: E712
     assert meta["collision_negatives"] == collisions <= 2
     np.testing.assert_array_equal(column_array(kept, "pose_object", (16,)),
@@ -294,13 +295,14 @@ def test_once_the_positives_are_in_the_batches_are_mostly_near_misses(box):
 def test_a_natural_set_keeps_every_collision_free_rollout_in_trial_order(box):
     """``natural`` keeps what the balanced loop keeps with no near misses, no collisions and targets out of reach
     (the reference), up to ``target_grasps``; its positives are the firm label's."""
-    reference = label_object_grasps(box, params(max_candidates=96, near_miss_fraction=0.0, collision_share=0.0),
-                                    np.random.default_rng(4))[0]
+    reference = label_object_grasps(
+        box, params(max_candidates=96, near_miss_fraction=0.0, collision_share_of_negatives=0.0),
+        np.random.default_rng(4))[0]
     codes = reference.column("outcome").to_numpy()
     assert (codes > Outcome.COLLISION_WITH_CLUTTER).all() and len(reference) >= 10
     natural, meta = label_object_grasps(
         box, ObjectGraspsParams(selection="natural", target_grasps=10, batch_size=16, max_candidates=96,
-                                collision_share=0.0), np.random.default_rng(4))
+                                collision_share_of_negatives=0.0), np.random.default_rng(4))
     np.testing.assert_array_equal(column_array(natural, "pose_object", (16,)),
                                   column_array(reference, "pose_object", (16,))[:10])
     firm = natural.column("firm").to_numpy(zero_copy_only=False)
@@ -327,8 +329,9 @@ def test_a_natural_set_short_of_its_target_warns_with_the_count(box):
 def test_a_natural_set_keeps_collisions_within_their_share_of_the_negatives(box):
     """Reference: every rollout of the same trials (balanced, nothing capped, targets out of reach), the rule
     applied by hand: a collision is kept while the kept collisions stay within 0.25 of the kept negatives."""
-    every = label_object_grasps(box, params(max_candidates=64, near_miss_fraction=0.0, collision_share=1.0),
-                                np.random.default_rng(6))[0]
+    every = label_object_grasps(
+        box, params(max_candidates=64, near_miss_fraction=0.0, collision_share_of_negatives=1.0),
+        np.random.default_rng(6))[0]
     codes, firm = every.column("outcome").to_numpy(), every.column("firm").to_numpy(zero_copy_only=False)
     expected, collisions, negatives, free = [], 0, 0, 0
     for i, code in enumerate(codes):
@@ -345,7 +348,7 @@ def test_a_natural_set_keeps_collisions_within_their_share_of_the_negatives(box)
     assert collisions >= 1, "need a kept collision"
     got, meta = label_object_grasps(
         box, ObjectGraspsParams(selection="natural", target_grasps=20, batch_size=16, max_candidates=64,
-                                collision_share=0.25), np.random.default_rng(6))
+                                collision_share_of_negatives=0.25), np.random.default_rng(6))
     np.testing.assert_array_equal(column_array(got, "pose_object", (16,)),
                                   column_array(every, "pose_object", (16,))[expected])
     assert meta["collision_negatives"] == collisions and meta["negatives"] == negatives
