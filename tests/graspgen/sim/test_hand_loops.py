@@ -130,21 +130,28 @@ def test_a_looped_hand_grasps_a_box_and_not_an_oversized_one(tmp_path):
 #: Each follower's joint 6 mm lower on it: its spring link is shorter than its driver, the 4-bars are no
 #: parallelograms and the pads turn.
 _SKEWED = ('pos="0 -0.0174 0.006"', 'pos="0 -0.0174 0.0"')
+#: The couplers free to turn (no limit at 0 to lean on): the spring links' springs swing them and the pads turn.
+_LOOSE = ('<joint range="-1.57 0"/>', '<joint range="-1.57 1.57"/>')
+#: No spring on the spring links: nothing holds the couplers at their limit, the links' pose depends on the way there.
+_FREE = ('stiffness="0.05"', 'stiffness="0"')
 #: The left pad welded to the base: no closing motion keeps the weld.
 _STUCK = ("</equality>", '<weld name="stuck" body1="left_pad" body2="base"/></equality>')
 
 
-@pytest.mark.parametrize(("edit", "yaml", "message"), [
-    (_SKEWED, _YAML, r"pads: the pad body 'right_pad' turns \d+\.\d degrees while closing \(with its loops "
-                     r"right_loop, left_loop closed by MuJoCo\); graspgen simulates parallel-jaw grippers"),
-    (_STUCK, _YAML, r"model hand.xml: equality stuck cannot be closed with the closing joints at right_driver_joint"
-                    r" = .*; name the joints that close the hand with joints: \[...\] or fix the loop"),
+@pytest.mark.parametrize(("edit", "message"), [
+    (_SKEWED, r"pads: the pad body 'right_pad' turns \d+\.\d degrees while closing \(with its loops "
+              r"right_loop, left_loop closed by MuJoCo\); graspgen simulates parallel-jaw grippers"),
+    (_LOOSE, r"pads: the pad body 'right_pad' turns \d+\.\d degrees while closing \(with its loops "),
+    (_FREE, r"model hand.xml: the loops \(right_loop, left_loop\) do not fix the fingers: body \w+ is "
+            r"\d\.\d\d mm apart closing and opening through the same joint values"),
+    (_STUCK, r"model hand.xml: equality stuck cannot be closed with the closing joints at right_driver_joint = .*; "
+             r"name the joints that close the hand with joints: \[...\] or fix the loop"),
 ])
-def test_loops_that_do_not_reduce_to_a_parallel_jaw_hand_are_errors_naming_them(tmp_path, edit, yaml, message):
+def test_loops_that_do_not_reduce_to_a_parallel_jaw_hand_are_errors_naming_them(tmp_path, edit, message):
     text = HAND.read_text()
     assert edit[0] in text
     with pytest.raises(SettingsError, match=message):
-        read_gripper(_gripper(tmp_path, text.replace(*edit), yaml))
+        read_gripper(_gripper(tmp_path, text.replace(*edit)))
 
 
 def test_a_looped_hand_without_an_actuator_needs_its_closing_joints_named(tmp_path):
