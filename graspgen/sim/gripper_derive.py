@@ -189,19 +189,20 @@ def _pieces(motion: HandMotion, smp: _Samples, T: np.ndarray, links, skip=None) 
 
 
 def _revolute_y(motion: HandMotion, smp: _Samples, T: np.ndarray, joint) -> tuple[float, float] | None:
-    """(x, z) of a revolute joint turning about the TCP y axis (open pose), or None."""
+    """(x, z) (m, TCP frame) of the axis of a revolute joint turning about the TCP y axis (open pose), or None."""
     if joint.type not in ("revolute", "continuous"):
         return None
     frame = T @ smp.poses[0][joint.parent] @ joint.origin
     axis = frame[:3, :3] @ joint.axis
     if abs(abs(axis[1]) - 1.0) > 1e-4:
         return None
-    return float(frame[0, 3]), float(frame[2, 3])
+    point = frame @ np.array([*joint.anchor, 1.0])  # the joint turns about its anchor (MJCF pos), fixed by its turn
+    return float(point[0]), float(point[2])
 
 
 def _linkage(motion: HandMotion, smp: _Samples, T: np.ndarray, right: list, pad, pieces) -> tuple:
     """(Linkage, coupler links) of the right finger: its pad's chain must hold two revolute joints about y."""
-    names = set(motion.closing) | set(motion.mimic)
+    names = motion.moving
     chain = [j for j in motion.tree.chain(motion.root, pad[0]) if j.name in names]
     if len(chain) != 2 or any(_revolute_y(motion, smp, T, j) is None for j in chain):
         raise SettingsError(f"pads: the pad {pad[0]!r} neither slides along the closing direction nor rides a "
@@ -225,20 +226,27 @@ def _linkage(motion: HandMotion, smp: _Samples, T: np.ndarray, right: list, pad,
     return linkage, coupler_links
 
 
-def _check_path(smp: _Samples, T: np.ndarray, pad: str, linkage: Linkage | None) -> str:
+def _loops_note(motion: HandMotion) -> str:
+    """' (its loops ... closed by MuJoCo)' for a hand with loops, else ''."""
+    if motion.loops is None:
+        return ""
+    return f" (with its loops {', '.join(motion.loops.equalities)} closed by MuJoCo)"
+
+
+def _check_path(motion: HandMotion, smp: _Samples, T: np.ndarray, pad: str, linkage: Linkage | None) -> str:
     """The right pad's path against the kinematics chosen; returns 'slide' or 'linkage'."""
     p = np.array([(T @ poses[pad])[:3, 3] for poses in smp.poses])
     turn = max(_turn(smp.poses[0][pad][:3, :3], poses[pad][:3, :3]) for poses in smp.poses)
     if turn > _PARALLEL_TOL:
-        raise SettingsError(f"pads: the pad body {pad!r} turns {np.degrees(turn):.1f} degrees while closing; "
-                            "graspgen simulates parallel-jaw grippers whose pads stay parallel")
+        raise SettingsError(f"pads: the pad body {pad!r} turns {np.degrees(turn):.1f} degrees while closing"
+                            f"{_loops_note(motion)}; graspgen simulates parallel-jaw grippers whose pads stay parallel")
     d = p - p[0]
     if linkage is None:
         return "slide"
     err = float(np.abs(linkage.rise(d[:, 0]) - d[:, 2]).max())
     if err > _LINKAGE_TOL:
-        raise SettingsError(f"pads: the pad's path is not the parallelogram linkage of its joints (off by "
-                            f"{err * 1e3:.2f} mm)")
+        raise SettingsError(f"pads: the pad's path{_loops_note(motion)} is not the parallelogram linkage of its "
+                            f"joints (off by {err * 1e3:.2f} mm)")
     return "linkage"
 
 
@@ -314,7 +322,9 @@ def build_spec(ref: ModelRef, motion: HandMotion, pads, *, file: str = "") -> Gr
     linkage, fingers = None, right
     if not _slides(smp, T, pads[1][0]):
         linkage, fingers = _linkage(motion, smp, T, right, pads[1], pieces)
-    kind = _check_path(smp, T, pads[1][0], linkage)
+    kind = _check_path(motion, smp, T, pads[1][0], linkage)
+    if motion.loops is not None:
+        kind += f", loops {', '.join(motion.loops.equalities)} closed by MuJoCo"
     body_mass, finger_mass = _masses(motion, static, fingers, given)
     force, speed, notes = _drive(motion, smp, max_width - min_width, given)
     palm = pieces(static)

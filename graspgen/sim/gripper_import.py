@@ -19,6 +19,11 @@ What is derived, from the model's own kinematics at the closing joints' values f
   a circle of two parallel revolute joints are a parallelogram :class:`~graspgen.grippers.Linkage` (driver: the
   first joint on the pad's chain, coupler: the second, follower: another revolute link of the same side), checked
   against the model's pad path to 0.2 mm. Pads that turn while closing are refused (not a parallel-jaw gripper).
+* **Closed loops** (MJCF ``connect`` / ``weld`` / tendon / non-linear joint equalities, as in MuJoCo Menagerie's
+  Robotiq 2F-85): MuJoCo settles the hand's other joints with the closing joints held at each of 201 samples from
+  open to closed (:mod:`graspgen.sim.hand_loops`); those joint values stand in for the forward kinematics above, so
+  the same slide or parallelogram is derived and checked. Such a hand needs its actuator or ``joints:`` to tell the
+  closing joints; a loop MuJoCo cannot close along the stroke, or that leaves a link free, is an error naming it.
 * **Collision pieces**: the open hand's collision geoms in the TCP frame, the right finger's (the left must be it
   turned 180 degrees about z, within 2 mm); boxes that stay axis-aligned stay boxes, other primitives become convex
   meshes, and mesh files go through :func:`graspgen.geometry.convex.cached_convex_decomposition` (a convex one is its

@@ -6,8 +6,10 @@ model MuJoCo compiles (so defaults, includes and ``meshdir`` apply as in MuJoCo)
   ball joints and bodies with several joints are refused.
 * Collision geoms only: a geom with ``contype`` and ``conaffinity`` both 0 is visual and ignored. Boxes, spheres,
   capsules, cylinders, ellipsoids and meshes are read; meshes are decomposed later (MuJoCo would collide their hulls).
-* Joint equalities ``q1 = ref1 + a0 + a1 (q2 - ref2)`` (linear polycoef) become mimic joints; other equalities that
-  tie the hand's bodies (connect, weld, tendon: closed kinematic loops) are refused, naming them.
+* Joint equalities ``q1 = ref1 + a0 + a1 (q2 - ref2)`` (linear polycoef) become mimic joints; the other equalities
+  (connect, weld, tendon and non-linear joint couplings: closed kinematic loops, as the Robotiq 2F-85 of MuJoCo
+  Menagerie closes each finger's 4-bar) are kept in :attr:`HandTree.loops` with the bodies they tie, for
+  :mod:`graspgen.sim.hand_loops` to resolve with MuJoCo; flex equalities are refused.
 * Actuators: each one's joints (a joint transmission, or the joints of a fixed tendon) and its force limit on each
   (``forcerange`` x gear x tendon coefficient).
 """
@@ -85,28 +87,48 @@ def _links(model: mujoco.MjModel, path: Path) -> dict[str, Link]:
     return links
 
 
-def _mimics(model: mujoco.MjModel, path: Path) -> dict[int, tuple[int, float, float]]:
-    """Dependent joint id -> (source joint id, multiplier, offset) of the active linear joint equalities."""
-    out = {}
+def _tied_bodies(model: mujoco.MjModel, e: int) -> tuple[str, ...]:
+    """The bodies equality ``e`` ties: its two bodies (or sites' bodies), or the bodies of its joints or tendons'
+    joints."""
+    kind, objs = int(model.eq_type[e]), [int(model.eq_obj1id[e]), int(model.eq_obj2id[e])]
+    if kind in (mujoco.mjtEq.mjEQ_CONNECT, mujoco.mjtEq.mjEQ_WELD):
+        if int(model.eq_objtype[e]) == mujoco.mjtObj.mjOBJ_SITE:
+            objs = [int(model.site_bodyid[o]) for o in objs if o >= 0]
+        bodies = [o for o in objs if o >= 0]
+    elif kind == mujoco.mjtEq.mjEQ_JOINT:
+        bodies = [int(model.jnt_bodyid[o]) for o in objs if o >= 0]
+    else:  # tendon
+        bodies = [int(model.jnt_bodyid[model.wrap_objid[w]]) for t in objs if t >= 0
+                  for w in range(int(model.tendon_adr[t]), int(model.tendon_adr[t]) + int(model.tendon_num[t]))
+                  if int(model.wrap_type[w]) == mujoco.mjtWrap.mjWRAP_JOINT]
+    return tuple(_name(model, mujoco.mjtObj.mjOBJ_BODY, b, "world" if b == 0 else f"body{b}") for b in bodies)
+
+
+def _equalities(model: mujoco.MjModel, path: Path) -> tuple[dict[int, tuple[int, float, float]], dict]:
+    """(dependent joint id -> (source joint id, multiplier, offset) of the active linear joint equalities,
+    equality name -> tied bodies of the other active ones: the loops)."""
+    mimics, loops = {}, {}
     for e in range(model.neq):
         if not model.eq_active0[e]:
             continue
         name = _name(model, mujoco.mjtObj.mjOBJ_EQUALITY, e, f"equality {e}")
-        if int(model.eq_type[e]) != mujoco.mjtEq.mjEQ_JOINT:
-            raise SettingsError(f"model {path.name}: equality {name} ({mujoco.mjtEq(int(model.eq_type[e])).name}) "
-                                "closes a kinematic loop; graspgen reads hands whose fingers are open chains of "
-                                "joints (joint equalities may couple them)")
+        kind = int(model.eq_type[e])
+        if kind not in (mujoco.mjtEq.mjEQ_CONNECT, mujoco.mjtEq.mjEQ_WELD, mujoco.mjtEq.mjEQ_JOINT,
+                        mujoco.mjtEq.mjEQ_TENDON):
+            raise SettingsError(f"model {path.name}: equality {name} ({mujoco.mjtEq(kind).name}): graspgen reads "
+                                "hands tied by connect, weld, joint and tendon equalities only")
         j1, j2 = int(model.eq_obj1id[e]), int(model.eq_obj2id[e])
         a = model.eq_data[e][:5]
-        if j2 < 0 or np.any(np.abs(a[2:]) > 1e-12):
-            raise SettingsError(f"model {path.name}: equality {name}: only linear couplings of two joints are read")
+        if kind != mujoco.mjtEq.mjEQ_JOINT or j2 < 0 or np.any(np.abs(a[2:]) > 1e-12):
+            loops[name] = _tied_bodies(model, e)
+            continue
         ref1, ref2 = float(model.qpos0[model.jnt_qposadr[j1]]), float(model.qpos0[model.jnt_qposadr[j2]])
-        out[j1] = (j2, float(a[1]), ref1 + float(a[0]) - float(a[1]) * ref2)
-    return out
+        mimics[j1] = (j2, float(a[1]), ref1 + float(a[0]) - float(a[1]) * ref2)
+    return mimics, loops
 
 
-def _joints(model: mujoco.MjModel, path: Path) -> list[Joint]:
-    mimics, out = _mimics(model, path), []
+def _joints(model: mujoco.MjModel, path: Path, mimics: dict) -> list[Joint]:
+    out = []
     for b in range(1, model.nbody):
         name = _name(model, mujoco.mjtObj.mjOBJ_BODY, b, f"body{b}")
         parent = _name(model, mujoco.mjtObj.mjOBJ_BODY, int(model.body_parentid[b]), "world")
@@ -166,5 +188,6 @@ def read_mjcf(path: str | Path) -> HandTree:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
         raise SettingsError(f"model {path}: MuJoCo cannot load it ({' '.join(str(exc).split())})") from None
-    return HandTree(path=str(path), links=_links(model, path), joints=tuple(_joints(model, path)),
-                    files=(str(path), *_mesh_files(path)), actuators=_actuators(model))
+    mimics, loops = _equalities(model, path)
+    return HandTree(path=str(path), links=_links(model, path), joints=tuple(_joints(model, path, mimics)),
+                    files=(str(path), *_mesh_files(path)), actuators=_actuators(model), loops=loops)

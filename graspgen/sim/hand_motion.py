@@ -1,11 +1,14 @@
 """The closing motion of a hand in a robot model (:class:`HandMotion`): which joints close it and which way, its pads,
 and fingers added where the file has none (:func:`hand_motion`). Plain numpy over :class:`~graspgen.sim.hand_tree.
-HandTree`; :mod:`graspgen.sim.gripper_import` (module docstring: what is derived) turns it into a gripper spec.
+HandTree`, except for a hand with closed kinematic loops (MJCF equalities, :attr:`HandTree.loops`), whose joints
+MuJoCo settles along the stroke (:mod:`graspgen.sim.hand_loops`); :mod:`graspgen.sim.gripper_import` (module
+docstring: what is derived) turns it into a gripper spec.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
@@ -13,6 +16,9 @@ import trimesh
 from graspgen.errors import SettingsError
 from graspgen.grippers.model_ref import ModelRef
 from graspgen.sim.hand_tree import Geom, HandTree, read_urdf
+
+if TYPE_CHECKING:
+    from graspgen.sim.hand_loops import LoopPath
 
 __all__ = ["HandMotion", "hand_motion", "world_vertices"]
 
@@ -31,13 +37,24 @@ class HandMotion:
     """Mimic joint name -> (source, multiplier, offset), sources resolved to closing joints."""
     actuator: str = ""
     """The MJCF actuator that closes the hand ('' when the closing joints were named or derived otherwise)."""
+    loops: LoopPath | None = None
+    """For a hand with closed kinematic loops: every hand joint's value along the stroke as MuJoCo settles it
+    (:mod:`graspgen.sim.hand_loops`); None for open chains."""
 
     def q(self, s: float) -> dict[str, float]:
-        """Joint values at closing fraction ``s`` (0 open, 1 closed)."""
+        """Joint values (rad or m) at closing fraction ``s`` (0 open, 1 closed)."""
         q = {n: a + s * (b - a) for n, (a, b) in self.closing.items()}
         for name, (src, mult, off) in self.mimic.items():
             q[name] = mult * q[src] + off
+        if self.loops is not None:
+            q.update({n: v for n, v in self.loops.at(s).items() if n not in self.closing})
         return q
+
+    @property
+    def moving(self) -> set[str]:
+        """Names of the joints that move with the closing ones: the closing and mimic joints, and every joint the
+        loops settle."""
+        return set(self.closing) | set(self.mimic) | set(() if self.loops is None else self.loops.joints)
 
     def poses(self, s: float) -> dict[str, np.ndarray]:
         """(4, 4) pose of each link in the base frame at ``s``."""
@@ -66,11 +83,16 @@ def _actuator(tree: HandTree, ref: ModelRef, moving: dict) -> str:
     return next(iter(mine), "")
 
 
-def _closing_joints(tree: HandTree, root: str, ref: ModelRef, pad_links: tuple[str, str]) -> tuple[list, dict, str]:
-    """(closing joint names, mimic map resolved to them, closing actuator or '') of the subtree of ``root``."""
+def _closing_joints(tree: HandTree, root: str, ref: ModelRef, pad_links: tuple[str, str],
+                    loops: tuple[str, ...] = ()) -> tuple[list, dict, str]:
+    """(closing joint names, mimic map resolved to them, closing actuator or '') of the subtree of ``root``;
+    ``loops``: the equalities that close loops in it (their joints are not told apart from closing ones)."""
     links = set(tree.subtree(root))
     moving = {j.name: j for j in tree.joints if j.child in links and j.type != "fixed"}
     actuator = "" if ref.joints else _actuator(tree, ref, moving)
+    if loops and not actuator and not ref.joints:
+        raise SettingsError(f"joints: the hand's loops ({', '.join(loops)}) hide which joints drive it and it has "
+                            "no actuator; name the joints that close it with joints: [...]")
     if actuator:
         closing = [j for j in tree.actuators[actuator][0] if j in moving]
         if not closing:
@@ -226,6 +248,44 @@ def _orient(tree: HandTree, root: str, closing: list, mimic: dict, pads: tuple, 
     return HandMotion(tree=tree, root=root, closing=ends, mimic=mimic, actuator=actuator)
 
 
+#: Samples of the stroke at which MuJoCo settles a looped hand's joints (linear between them).
+LOOP_SAMPLES = 201
+
+
+def _orient_loops(tree: HandTree, root: str, closing: list, mimic: dict, pads: tuple, actuator: str,
+                  loops: tuple[str, ...]) -> HandMotion:
+    """:func:`_orient` for a hand with closed loops: MuJoCo settles the loops with each closing joint at either end
+    of its range (the others mid-range) to find its open end, then along the stroke from open to closed."""
+    from graspgen.sim.hand_loops import LoopSolver
+
+    links = set(tree.subtree(root))
+    hand = [j.name for j in tree.joints if j.child in links and j.type != "fixed"]
+    solver = LoopSolver(tree.path, hand, closing, loops)
+    joints = {j.name: j for j in tree.joints}
+
+    def gap(q):
+        poses = tree.poses(root, q)
+        centres = [world_vertices(poses, link, tree.links[link].geoms[k]).mean(axis=0) for link, k in pads]
+        return float(np.linalg.norm(centres[1] - centres[0]))
+    mid = {n: (joints[n].lower + joints[n].upper) / 2.0 for n in closing}
+    ends = {}
+    for name in closing:
+        j = joints[name]
+        low, high = (gap(solver.settle(dict(mid, **{name: v}), check=False)) for v in (j.lower, j.upper))
+        if abs(high - low) < 1e-6:
+            raise SettingsError(f"joints: {name!r} does not move the pads apart or together with the loops "
+                                f"({', '.join(loops)}) closed; name the joints that close the hand")
+        ends[name] = (j.upper, j.lower) if high > low else (j.lower, j.upper)
+    path = solver.path(ends, LOOP_SAMPLES)
+    return HandMotion(tree=tree, root=root, closing=ends, mimic=mimic, actuator=actuator, loops=path)
+
+
+def _hand_loops(tree: HandTree, root: str) -> tuple[str, ...]:
+    """The loop equalities that tie a body of ``root``'s subtree."""
+    links = set(tree.subtree(root))
+    return tuple(n for n, bodies in tree.loops.items() if links & set(bodies))
+
+
 def hand_motion(ref: ModelRef) -> tuple[HandMotion, tuple[tuple[str, int], tuple[str, int]]]:
     """The :class:`HandMotion` of the hand in ``ref`` and its (left, right) pad geoms as (link, geom index)."""
     tree = _read_tree(ref)
@@ -233,5 +293,8 @@ def hand_motion(ref: ModelRef) -> tuple[HandMotion, tuple[tuple[str, int], tuple
     tree.subtree(root)  # the body exists
     tree = _with_finger_box(tree, root, ref)
     left, right = _pad_geoms(tree, root, ref.pads)
-    closing, mimic, actuator = _closing_joints(tree, root, ref, (left[0], right[0]))
+    loops = _hand_loops(tree, root)
+    closing, mimic, actuator = _closing_joints(tree, root, ref, (left[0], right[0]), loops)
+    if loops:
+        return _orient_loops(tree, root, closing, mimic, (left, right), actuator, loops), (left, right)
     return _orient(tree, root, closing, mimic, (left, right), actuator), (left, right)

@@ -106,6 +106,9 @@ class HandTree:
     actuators: dict = field(default_factory=dict, repr=False)
     """MJCF actuator name -> (its joints, the force limit on each (N for a slide, N m for a hinge; 0: none)); empty
     for URDF, which has no actuators."""
+    loops: dict = field(default_factory=dict, repr=False)
+    """MJCF equality name -> the bodies it ties, for each active equality that closes a kinematic loop (connect,
+    weld, tendon and non-linear joint couplings; :mod:`graspgen.sim.hand_loops` resolves them); empty for URDF."""
 
     def root(self) -> str:
         """The link that is no joint's child (:class:`SettingsError` if there is not exactly one)."""
