@@ -10,6 +10,7 @@ The gripper file then reads, for example::
     # package: an importable package (path inside its folder) or a distribution (path inside its install root)
     pads: [left_inner_finger_pad, right_inner_finger_pad]   # geom or body names: left, then right
     force_limit: 100.0                                       # what the file does not say
+    pad_turn_tolerance: 3                                    # degrees a pad may turn while closing (default 1)
 
 Everything else (stroke, TCP, pad faces, closing direction, collision pieces, linkage, masses, speed) is derived from
 the model by :func:`graspgen.sim.gripper_import.derive_spec`; any :class:`GripperSpec` scalar given beside it
@@ -30,13 +31,17 @@ from typing import Any
 
 from graspgen.errors import SettingsError
 from graspgen.grippers.shapes import Box, short_repr
+from graspgen.validation import check_number
 
-__all__ = ["MODEL_KEYS", "MODEL_SUFFIXES", "ModelRef", "model_ref_from_dict", "set_model_reader", "spec_from_model"]
+__all__ = ["MAX_PAD_TURN_TOLERANCE", "MODEL_KEYS", "MODEL_SUFFIXES", "PAD_TURN_TOLERANCE", "ModelRef",
+           "model_ref_from_dict", "set_model_reader", "spec_from_model"]
 
 #: Suffixes of the robot model files a gripper file's ``model:`` may name.
 MODEL_SUFFIXES = (".urdf", ".xml")
 #: The keys of a gripper file that describe its model (besides GripperSpec scalars that override derived values).
-MODEL_KEYS = ("model", "pads", "joints", "actuator", "body", "finger_box")
+MODEL_KEYS = ("model", "pads", "joints", "actuator", "body", "finger_box", "pad_turn_tolerance")
+#: Default and largest ``pad_turn_tolerance`` (degrees): a pad turning more than 10 degrees is no parallel jaw.
+PAD_TURN_TOLERANCE, MAX_PAD_TURN_TOLERANCE = 1.0, 10.0
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,12 @@ class ModelRef:
     finger_box: Box | None = None
     """A box finger put on each pad body that has no collision geometry (hands the file gives without fingers),
     in the right pad body's frame (m); the left pad body gets it turned 180 degrees about the TCP's z axis."""
+    pad_turn_tolerance: float = PAD_TURN_TOLERANCE
+    """Largest turn (degrees, 0 to :data:`MAX_PAD_TURN_TOLERANCE`) of a pad body over the stroke for the pads to
+    count as parallel; a hand whose pads turn more is refused. The derived gripper keeps its pads parallel: a turn
+    within the tolerance is ignored (not simulated), and one over 0.1 degrees is named in the gripper's ``source``.
+    MuJoCo Menagerie's Robotiq 2F-85, whose 4-bars are not exact parallelograms, turns its pads about 1.8
+    degrees."""
     overrides: tuple[tuple[str, Any], ...] = ()
     """(GripperSpec field, value) pairs given beside ``model`` in the gripper file: they replace derived values."""
 
@@ -105,6 +116,14 @@ def _names(key: str, value: Any) -> tuple[str, ...]:
     return tuple(items)
 
 
+def _turn_tolerance(value: Any) -> float:
+    """``pad_turn_tolerance`` (degrees) checked; :class:`SettingsError` naming the key and its unit."""
+    try:
+        return check_number("pad_turn_tolerance", value, low=0.0, high=MAX_PAD_TURN_TOLERANCE)
+    except SettingsError as exc:
+        raise SettingsError(f"{exc} (degrees a pad may turn while closing)") from None
+
+
 def model_ref_from_dict(data: Mapping[str, Any], base_dir: Path, overrides: Mapping[str, Any]) -> ModelRef:
     """The :class:`ModelRef` of a gripper file's contents ``data`` (which holds ``model``); paths relative to
     ``base_dir``; ``overrides`` the GripperSpec fields given beside it. :class:`SettingsError` names the key."""
@@ -122,6 +141,7 @@ def model_ref_from_dict(data: Mapping[str, Any], base_dir: Path, overrides: Mapp
     return ModelRef(path=str(_model_path(data["model"], base_dir)), pads=(pads[0], pads[1]),
                     joints=_names("joints", data.get("joints") or []), actuator=str(data.get("actuator") or ""),
                     body=str(data.get("body") or ""), finger_box=box,
+                    pad_turn_tolerance=_turn_tolerance(data.get("pad_turn_tolerance", PAD_TURN_TOLERANCE)),
                     overrides=tuple(sorted(overrides.items())))
 
 

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -14,7 +15,7 @@ import trimesh
 
 from graspgen.errors import SettingsError
 from graspgen.geometry.convex import CoacdParams, cached_convex_decomposition
-from graspgen.grippers.model_ref import ModelRef
+from graspgen.grippers.model_ref import MAX_PAD_TURN_TOLERANCE, ModelRef
 from graspgen.grippers.shapes import Box, Linkage, Mesh, Shape, bounds_of
 from graspgen.grippers.spec import GripperSpec
 from graspgen.sim.hand_motion import HandMotion, world_vertices
@@ -23,8 +24,9 @@ from graspgen.sim.hand_tree import Link
 __all__ = ["build_spec", "gripper_cache_dir", "shapes_of", "mirrored_bounds_gap"]
 
 _SAMPLES = 401
-#: Largest turn (rad) of a pad over the stroke for the pads to count as parallel.
-_PARALLEL_TOL = np.radians(1.0)
+#: Smallest turn (degrees) of a pad over the stroke that the gripper's ``source`` names (the pads' largest allowed
+#: turn is the gripper file's ``pad_turn_tolerance``, :attr:`ModelRef.pad_turn_tolerance`).
+_NAMED_TURN = 0.1
 #: Largest off-axis travel (m) of a pad over the stroke for its jaw to count as prismatic.
 _SLIDE_TOL = 1e-4
 #: Largest error (m) of the fitted parallelogram linkage against the model's pad path.
@@ -233,13 +235,24 @@ def _loops_note(motion: HandMotion) -> str:
     return f" (with its loops {', '.join(motion.loops.equalities)} closed by MuJoCo)"
 
 
-def _check_path(motion: HandMotion, smp: _Samples, T: np.ndarray, pad: str, linkage: Linkage | None) -> str:
+def _check_turn(motion: HandMotion, smp: _Samples, pad: str, tolerance: float) -> float:
+    """The largest turn (degrees) of the right pad body over the stroke; :class:`SettingsError` over ``tolerance``
+    (degrees), naming the gripper-file key that raises it where that would do."""
+    turn = float(np.degrees(max(_turn(smp.poses[0][pad][:3, :3], poses[pad][:3, :3]) for poses in smp.poses)))
+    if turn > tolerance:
+        hint = ""
+        if math.floor(turn) + 1 <= MAX_PAD_TURN_TOLERANCE:
+            hint = (f"; to accept it, give pad_turn_tolerance: {math.floor(turn) + 1} (degrees) in the gripper file: "
+                    "the derived gripper keeps its pads parallel, the turn is ignored")
+        raise SettingsError(f"pads: the pad body {pad!r} turns {turn:.2f} degrees while closing{_loops_note(motion)}, "
+                            f"more than pad_turn_tolerance ({tolerance:g} deg); graspgen simulates parallel-jaw "
+                            f"grippers whose pads stay parallel{hint}")
+    return turn
+
+
+def _check_path(smp: _Samples, T: np.ndarray, pad: str, linkage: Linkage | None, motion: HandMotion) -> str:
     """The right pad's path against the kinematics chosen; returns 'slide' or 'linkage'."""
     p = np.array([(T @ poses[pad])[:3, 3] for poses in smp.poses])
-    turn = max(_turn(smp.poses[0][pad][:3, :3], poses[pad][:3, :3]) for poses in smp.poses)
-    if turn > _PARALLEL_TOL:
-        raise SettingsError(f"pads: the pad body {pad!r} turns {np.degrees(turn):.1f} degrees while closing"
-                            f"{_loops_note(motion)}; graspgen simulates parallel-jaw grippers whose pads stay parallel")
     d = p - p[0]
     if linkage is None:
         return "slide"
@@ -322,18 +335,22 @@ def build_spec(ref: ModelRef, motion: HandMotion, pads, *, file: str = "") -> Gr
     linkage, fingers = None, right
     if not _slides(smp, T, pads[1][0]):
         linkage, fingers = _linkage(motion, smp, T, right, pads[1], pieces)
-    kind = _check_path(motion, smp, T, pads[1][0], linkage)
+    turn = _check_turn(motion, smp, pads[1][0], ref.pad_turn_tolerance)
+    kind = _check_path(smp, T, pads[1][0], linkage, motion)
     if motion.loops is not None:
         kind += f", loops {', '.join(motion.loops.equalities)} closed by MuJoCo"
+    turned = "" if turn < _NAMED_TURN else (
+        f"; the pads turn {turn:.2f} degrees while closing (pad_turn_tolerance {ref.pad_turn_tolerance:g} deg): "
+        "simulated parallel, the turn ignored")
     body_mass, finger_mass = _masses(motion, static, fingers, given)
     force, speed, notes = _drive(motion, smp, max_width - min_width, given)
     palm = pieces(static)
     if not palm:
         raise SettingsError(f"body: the hand's base ({motion.root}) has no collision geometry below it that stays "
                             "still while closing")
-    source = given.get("source") or (
+    source = (given.get("source") or (
         f"derived from {Path(ref.path).name} (hand {motion.root}; pads {ref.pads[0]}, {ref.pads[1]}; closing "
-        f"joints {', '.join(motion.closing)}; {kind}){'; ' + notes if notes else ''}")
+        f"joints {', '.join(motion.closing)}; {kind}){'; ' + notes if notes else ''}")) + turned
     finger_size = _finger_size(pad_shape + pieces(fingers, skip=pads[1]))
     pad_size = (*pad_size[:2], min(pad_size[2], finger_size[2]))  # the shared face lies within the finger
     return GripperSpec(

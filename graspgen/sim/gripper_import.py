@@ -18,7 +18,9 @@ What is derived, from the model's own kinematics at the closing joints' values f
 * **Kinematics**: pads that only slide along x are two prismatic jaws; pads that keep their orientation and move on
   a circle of two parallel revolute joints are a parallelogram :class:`~graspgen.grippers.Linkage` (driver: the
   first joint on the pad's chain, coupler: the second, follower: another revolute link of the same side), checked
-  against the model's pad path to 0.2 mm. Pads that turn while closing are refused (not a parallel-jaw gripper).
+  against the model's pad path to 0.2 mm. Pads whose body turns more than the gripper file's ``pad_turn_tolerance``
+  (degrees, default 1) while closing are refused (not a parallel-jaw gripper), the error giving the measured turn; a
+  turn within it is ignored (the derived pads stay parallel) and, over 0.1 degree, named in the spec's ``source``.
 * **Closed loops** (MJCF ``connect`` / ``weld`` / tendon / non-linear joint equalities, as in MuJoCo Menagerie's
   Robotiq 2F-85): MuJoCo settles the hand's other joints with the closing joints held at each of 201 samples from
   open to closed (:mod:`graspgen.sim.hand_loops`); those joint values stand in for the forward kinematics above, so

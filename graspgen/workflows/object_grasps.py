@@ -59,11 +59,10 @@ rollouts):
    fewer than ``target_positives`` successes are kept, a failure while fewer than ``target_negatives`` failures
    are (a collision at placement, outcomes 0-2, only while collisions are fewer than
    ``collision_share_of_negatives`` of ``target_negatives``), and the loop stops when both targets are met or
-   ``max_candidates`` rollouts were made. "Success" is the ``label`` setting's: ``held`` (default: outcome 5, the
-   object still between the fingers, ACRONYM's label, so the set is what it was before the firm label existed) or
-   ``firm`` (outcome 5 with the object's motion in the hand within the firm-hold tolerances,
-   :mod:`graspgen.sim.lift`; held-but-not-firm grasps are then negatives). Both labels are in every row
-   (``success``, ``firm``).
+   ``max_candidates`` rollouts were made. "Success" is the ``label`` setting's: ``firm`` (default: outcome 5 with
+   the object's motion in the hand within the firm-hold tolerances, :mod:`graspgen.sim.lift`; held-but-not-firm
+   grasps are then negatives) or ``held`` (outcome 5: the object still between the fingers, ACRONYM's label, the
+   set as it was before the firm label existed). Both labels are in every row (``success``, ``firm``).
 
 3. **Labels per kept row**: the rollout's outcome, ACRONYM's four motion measures, the finger contacts at the end of
    closing in the object frame (mapped with the object's pose when closing ended, so exactly), the Ferrari-Canny

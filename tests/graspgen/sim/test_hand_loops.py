@@ -6,6 +6,8 @@ naming them."""
 
 from __future__ import annotations
 
+import re
+
 import mujoco
 import numpy as np
 import pytest
@@ -52,7 +54,7 @@ def _reference(path, holds: int = 41) -> dict:
     model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     model.actuator_ctrlrange[0] = (-25.5, 280.5)
     data = mujoco.MjData(model)
-    out = {"width": [], "z_lo": [], "z_hi": [], "right_z": [], "turn": []}
+    out = {"width": [], "z_lo": [], "z_hi": [], "right_z": [], "turn": [], "right_pad": []}
     for ctrl in np.linspace(-25.5, 280.5, holds):
         data.ctrl[0] = ctrl
         for _ in range(1500):  # 3 s: the position actuator's damped response settles to well under a micrometre
@@ -62,7 +64,8 @@ def _reference(path, holds: int = 41) -> dict:
         out["z_lo"].append(max(right[:, 2].min(), left[:, 2].min()))
         out["z_hi"].append(min(right[:, 2].max(), left[:, 2].max()))
         out["right_z"].append(right[:, 2].mean())
-        out["turn"].append(data.xmat[model.body("right_pad").id].reshape(3, 3))
+        out["turn"].append(data.xmat[model.body("right_pad").id].reshape(3, 3).copy())  # a view of data: copy it
+        out["right_pad"].append(data.xpos[model.body("right_pad").id].copy())
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -139,9 +142,10 @@ _STUCK = ("</equality>", '<weld name="stuck" body1="left_pad" body2="base"/></eq
 
 
 @pytest.mark.parametrize(("edit", "message"), [
-    (_SKEWED, r"pads: the pad body 'right_pad' turns \d+\.\d degrees while closing \(with its loops "
-              r"right_loop, left_loop closed by MuJoCo\); graspgen simulates parallel-jaw grippers"),
-    (_LOOSE, r"pads: the pad body 'right_pad' turns \d+\.\d degrees while closing \(with its loops "),
+    (_SKEWED, r"pads: the pad body 'right_pad' turns \d+\.\d\d degrees while closing \(with its loops "
+              r"right_loop, left_loop closed by MuJoCo\), more than pad_turn_tolerance \(1 deg\); graspgen simulates "
+              r"parallel-jaw grippers"),
+    (_LOOSE, r"pads: the pad body 'right_pad' turns \d+\.\d\d degrees while closing \(with its loops "),
     (_FREE, r"model hand.xml: the loops \(right_loop, left_loop\) do not fix the fingers: body \w+ is "
             r"\d\.\d\d mm apart closing and opening through the same joint values"),
     (_STUCK, r"model hand.xml: equality stuck cannot be closed with the closing joints at right_driver_joint = .*; "
@@ -162,3 +166,88 @@ def test_a_looped_hand_without_an_actuator_needs_its_closing_joints_named(tmp_pa
     spec = read_gripper(_gripper(tmp_path, text, _YAML + "joints: [right_driver_joint, left_driver_joint]\n"))
     assert spec.max_width == pytest.approx(0.085, abs=1e-4) and spec.linkage is not None
 
+
+
+SKEW = TESTS / "graspgen" / "sim" / "data" / "loop_2f85_skew.xml"
+"""loop_2f85.xml with 4-bars that are no parallelograms, as Menagerie's 2F-85's: base side 18.4 mm, opposite 19.1 mm."""
+
+
+def _skew(tmp_path, tolerance=None):
+    """The skewed hand's gripper file, with ``pad_turn_tolerance: <tolerance>`` (degrees) when given."""
+    extra = "" if tolerance is None else f"pad_turn_tolerance: {tolerance}\n"
+    return _gripper(tmp_path, SKEW.read_text(), _YAML + extra)
+
+
+def _turns(ref: dict) -> np.ndarray:
+    """(k,) degrees the right pad body has turned at each reference sample since the first (open)."""
+    return np.degrees([np.arccos(np.clip((np.trace(ref["turn"][0].T @ R) - 1.0) / 2.0, -1.0, 1.0))
+                       for R in ref["turn"]])
+
+
+def test_the_skewed_4bar_has_menagerie_sides():
+    model = mujoco.MjModel.from_xml_path(str(SKEW))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    pos = {n: data.xanchor[model.joint(f"right_{n}_joint").id] for n in ("driver", "spring_link", "follower")}
+    follower = model.body("right_follower").id
+    anchor = data.xpos[follower] + data.xmat[follower].reshape(3, 3) @ model.eq("right_loop").data[:3]
+    assert np.linalg.norm(pos["driver"] - pos["spring_link"]) == pytest.approx(0.0184, abs=5e-5)
+    assert np.linalg.norm(anchor - pos["follower"]) == pytest.approx(0.0191, abs=5e-5)
+
+
+def test_pads_that_turn_more_than_the_tolerance_are_refused_naming_the_turn_and_the_option(tmp_path):
+    ref = _reference(SKEW)
+    with pytest.raises(SettingsError) as err:
+        read_gripper(_skew(tmp_path))
+    message = str(err.value)
+    assert "more than pad_turn_tolerance (1 deg)" in message
+    assert "give pad_turn_tolerance: 2 (degrees) in the gripper file" in message
+    assert "the derived gripper keeps its pads parallel, the turn is ignored" in message
+    turned = float(re.search(r"pad body 'right_pad' turns (\d+\.\d+) degrees while closing", message)[1])
+    # The simulated turn where the faces meet (the end of the stroke), between the reference's samples.
+    inside = ref["width"] > -0.005
+    simulated = float(np.interp(0.0, ref["width"][inside][::-1], _turns(ref)[inside][::-1]))
+    assert turned == pytest.approx(simulated, abs=0.02)
+    assert 1.5 < turned < 2.0  # Menagerie's 2F-85 turns its pads about 1.8 degrees
+
+
+def test_pads_that_turn_within_the_tolerance_are_kept_parallel_on_the_simulated_path(tmp_path):
+    spec = read_gripper(_skew(tmp_path, 3))
+    ref = _reference(SKEW)
+    assert np.all(np.diff(ref["width"]) < 1e-7)
+    assert spec.max_width == pytest.approx(ref["width"][0], abs=5e-5)
+    assert spec.max_width == pytest.approx(0.085, abs=1e-4)
+    assert spec.min_width == 0.0
+    assert spec.tcp_offset == pytest.approx((ref["z_lo"].max() + ref["z_hi"].min()) / 2.0, abs=1e-4)
+    inside = ref["width"] > 0.0
+    assert spec.linkage is not None
+    # The pad body's origin rides the derived linkage to 0.05 mm (the derivation checks 0.2 mm) ...
+    travel = ref["right_pad"][inside] - ref["right_pad"][0]
+    assert spec.linkage.rise(travel[:, 1]) == pytest.approx(travel[:, 2], abs=1e-4)
+    # ... and the pad face rises as simulated to 0.3 mm at the same width: the 1.7 degrees the derived pads do not turn
+    # tilt the simulated face (37.5 mm long) by up to 1.1 mm, which moves where it touches at a width.
+    rise = ref["right_z"][inside] - ref["right_z"][0]
+    assert spec.pad_rise(ref["width"][inside]) == pytest.approx(rise, abs=3e-4)
+    assert re.search(r"; the pads turn 1\.\d\d degrees while closing \(pad_turn_tolerance 3 deg\): simulated "
+                     r"parallel, the turn ignored$", spec.source)
+    exact = tmp_path / "exact"
+    exact.mkdir()
+    assert "turn" not in read_gripper(_gripper(exact)).source  # the exact parallelogram's pads turn under 0.1 degree
+
+
+def test_a_hand_whose_pads_turn_within_the_tolerance_grasps_a_box(tmp_path):
+    gripper = _skew(tmp_path, 3)
+    trimesh.creation.box(extents=(0.04, 0.04, 0.04)).export(tmp_path / "small.obj")
+    table = evaluate_grasps(tmp_path / "small.obj", 1.0, top_down(0.0, 0.0, 0.0)[None], None, gripper,
+                            EvaluateParams(), protocol="acronym", cache_dir=tmp_path / "cache")
+    assert table.column("outcome").to_pylist() == [5]  # lifted
+
+
+@pytest.mark.parametrize(("value", "message"), [
+    (-1, r"pad_turn_tolerance: must be in \[0, 10\], got -1 \(degrees a pad may turn while closing\)"),
+    (30, r"pad_turn_tolerance: must be in \[0, 10\], got 30 \(degrees"),
+    ("'2 deg'", r"pad_turn_tolerance: must be a number, got '2 deg' \(degrees"),
+])
+def test_a_bad_pad_turn_tolerance_is_an_error_naming_the_key(tmp_path, value, message):
+    with pytest.raises(SettingsError, match=message):
+        read_gripper(_skew(tmp_path, value))
