@@ -157,8 +157,8 @@ def _failing_dask_backend(client: Any) -> Any:
     ``distributed.scheduler.allowed-failures`` + 1 times (4 by default: it crashes them, or runs them out of memory)
     gets a ``KilledWorker`` error, which joblib's backend sets on the batch's future and never reports to its
     completion callback: the call, waiting on the callbacks, would wait forever. And a large argument (a stage's
-    upstream view, 0.5-2 MB at 1,000 objects) is sent once per run as a task's result, which a worker's death cannot
-    lose (``Backend._send_once``). The class is made here because its base needs dask, an optional package.
+    upstream view) is sent once per run as a task's result, which a worker's death cannot lose
+    (``Backend._send_once``). The class is made here because its base needs dask, an optional package.
     """
     from dask.sizeof import sizeof
     from joblib._dask import DaskDistributedBackend

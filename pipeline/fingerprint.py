@@ -1,7 +1,7 @@
 """Code fingerprints: the source a stage runs and the package versions it uses, for its content keys.
 
-Without them a code change silently reuses stale shards (it did: a changed constant in the grasp-and-lift module
-left every rollout "done"). The rule, for the module that defines a stage class:
+Without them a code change silently reuses stale shards (a changed constant would leave every rollout "done").
+The rule, for the module that defines a stage class:
 
 * **Code**: that module and every module of the project it imports, transitively -- top-level imports and imports
   inside functions alike, since both are code the stage may run. A module is *the project's* when its file lies
@@ -16,11 +16,11 @@ The walk reads source files with :mod:`ast` and finds them on disk from their to
 :func:`importlib.util.find_spec`, which imports nothing for a top-level name). Each file is read once per process;
 a stage's fingerprint is computed once per process (``gen status`` and ``gen run`` compute the same thing).
 
-Parsing and normalising ~120 modules costs 1-2 s, paid by every ``gen run`` and ``gen status`` before they plan
-anything, so inside :func:`module_cache` (which both open on ``run.cache_dir``) a module's (digest, imports) is kept
-in ``<cache_dir>/fingerprints/<module>.json`` under the sha256 of its source bytes, the module name and the Python
-version: a cached answer is used only for the very bytes it was computed from, so the cache changes no key. A
-damaged cache file is ignored and rewritten; an unwritable folder leaves the cache unused.
+Parsing and normalising every module is paid by every ``gen run`` and ``gen status`` before they plan anything
+(docs/decisions/2026-12-03-engine-at-scale.md), so inside :func:`module_cache` (which both open on ``run.cache_dir``) a
+module's (digest, imports) is kept in ``<cache_dir>/fingerprints/<module>.json`` under the sha256 of its source bytes,
+the module name and the Python version: a cached answer is used only for the very bytes it was computed from, so the
+cache changes no key. A damaged cache file is ignored and rewritten; an unwritable folder leaves the cache unused.
 """
 
 from __future__ import annotations

@@ -33,8 +33,7 @@ def read_entries(manifest: Manifest) -> dict[str, Entry]:
 
     Inside :func:`one_check_per_shard` a manifest is parsed once while it stays the same file (path, size,
     mtime, inode; a commit appends a line, so it grows): a run reads a stage's manifest when it plans the stage,
-    when it plans each stage below it (the object library: eight times) and when it finishes it, ~40 parses of
-    up to 1,000 lines each at 1,000 objects, a third of a no-op rerun's CPU."""
+    when it plans each stage below it and when it finishes it (docs/decisions/2026-12-03-engine-at-scale.md)."""
     stamp = _manifest_stamp(manifest) if _manifests is not None else None
     if stamp is not None and _manifests is not None:
         cached = _manifests.get(str(manifest.path))
@@ -189,9 +188,10 @@ def check_shards(manifest: Manifest, entries: Iterable[Entry]) -> None:
     """Check the shards of ``entries`` (size and sha256) in :data:`HASH_THREADS` threads, ahead of the
     :func:`shard_ok` calls that will ask for them (inside :func:`one_check_per_shard`; a no-op outside one).
 
-    Why: ``gen status`` and every ``gen run`` hash every shard they plan on (570 MB at 1,000 objects); one file
-    after the other that is one core, and a wait on every read from a cold disk or a network file system. The
-    answers are :meth:`Manifest.shard_ok`'s, the same as one by one."""
+    Why: ``gen status`` and every ``gen run`` hash every shard they plan on; one file after the other that is one
+    core, and a wait on every read from a cold disk or a network file system
+    (docs/decisions/2026-12-03-engine-at-scale.md). The answers are :meth:`Manifest.shard_ok`'s, the same as one by
+    one."""
     if _checked is None:
         return
     todo: dict[tuple[Any, ...], Entry] = {}

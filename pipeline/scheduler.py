@@ -118,9 +118,9 @@ class _Checks:
     checked, so a no-op rerun checks nothing.
 
     Why not check every stage up front: a check may be costly for what it guards (the probe's imports torch and
-    scikit-learn, seconds of CPU and ~250 MB in the scheduler process of every ``gen run``, though the probe's own
-    task imports them where it runs). The promise stays: no task starts before every stage that may run is
-    checked."""
+    scikit-learn into the scheduler process of every ``gen run``, though the probe's own task imports them where it
+    runs; docs/decisions/2026-12-03-engine-at-scale.md). The promise stays: no task starts before every stage that
+    may run is checked."""
 
     config: Any
     unplanned: list[Stage]

@@ -56,9 +56,9 @@ def stage_dir(out: str | os.PathLike, stage: str) -> Path:
 class MetaText(Mapping[str, Any]):
     """An entry's ``meta`` held as its compact JSON text and decoded on each read.
 
-    Why: the engine holds every shard's entry of every stage it plans (at 1,000 objects, ~5,000), and decoded
-    metadata (per-object counts, outcome tables) is ~3x its text in memory. Read it whole with :meth:`to_dict`
-    (a ``Mapping`` lookup decodes the text each time).
+    Why: the engine holds every shard's entry of every stage it plans, and decoded metadata (per-object counts,
+    outcome tables) takes several times its text in memory (docs/decisions/2026-12-03-engine-at-scale.md). Read it
+    whole with :meth:`to_dict` (a ``Mapping`` lookup decodes the text each time).
     """
 
     __slots__ = ("text",)

@@ -107,11 +107,10 @@ _views: collections.OrderedDict[str, dict[str, dict[str, Entry]]] = collections.
 class SharedView:
     """A stage's upstream view as its tasks are shipped it: pickled once by the scheduler, unpickled once per worker.
 
-    Why: a scene's task reads its scene and the whole object library, so shipping each task its own
-    :class:`~pipeline.stage.Upstream` pickled and unpickled the library's entries once per task: ``scenes x
-    objects`` entries per stage, 5-6 ms a task at 1,000 objects (quadratic in N). Each task now carries the
-    view's pickled bytes (a copy, not a walk) and its ``needs``; a worker unpickles a view the first time it sees
-    its token and builds each task's view from that.
+    Why: a scene's task reads its scene and the whole object library, so a view pickled per task costs ``scenes x
+    objects`` entries per stage, quadratic in N (docs/decisions/2026-12-03-engine-at-scale.md). Each task carries
+    the view's pickled bytes (a copy, not a walk) and its ``needs``; a worker unpickles a view the first time it
+    sees its token and builds each task's view from that.
     """
 
     def __init__(self, out: Path, entries: dict[str, dict[str, Entry]]):

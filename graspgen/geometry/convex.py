@@ -35,11 +35,9 @@ __all__ = ["CoacdParams", "HullSlack", "cached_convex_decomposition", "coacd_cac
 _log = logging.getLogger(__name__)
 
 
-# Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss.
-_COACD_CACHE_FORMAT = 5  # 2: pre-processing skipped for watertight meshes, near-convex skip, slack-judged refine;
-# 3: CoACD's pieces merged by bridge depth (part_merge), the refinement re-merges and cuts at half the threshold;
-# 4: the refinement cuts only the rough pieces again where they hold at most half the area; 5: the part merge measures
-# its bridge depths in a fixed order of operations (a tie at the last bit can merge another pair)
+# Bumped whenever the post-processing of CoACD output changes, so that stale cache entries miss (what each version
+# changed: docs/decisions/2026-12-03-coacd-decomposition.md).
+_COACD_CACHE_FORMAT = 5
 
 # A mesh whose volume is within this fraction of its hull's volume is treated as convex.
 _CONVEX_VOLUME_TOLERANCE = 1e-6
@@ -51,8 +49,8 @@ _MIN_PART_VOLUME_RATIO = 1e-6
 _PREPROCESS_MODES = ("unless_watertight", "auto", "on", "off")
 
 # The refinement's finer cut (CoacdParams.refine_excess), by how many pieces the first cut made per allowed part: a
-# cut at a quarter of the threshold makes 5-7 times the pieces, at half 2-3.5 times (../shared/learn's bowls, mugs
-# and knives), and beyond about four times the cap the merge back down to it bridges again what the cut separated.
+# finer cut multiplies the pieces (docs/decisions/2026-12-03-coacd-decomposition.md), and beyond about four times the
+# cap the merge back down to it bridges again what the cut separated.
 _QUARTER_CUT_PIECES = 2
 _HALF_CUT_PIECES = 4
 

@@ -14,7 +14,7 @@ Each shape is then scaled per axis so its bounding box has the drawn extents: th
 the smallest uniform in ``[0.3 * largest, min(largest, max_grasp_width)]``, the middle one uniform between the
 smallest and ``min(largest, max_grasp_width)``, the three assigned to the axes in a random order. So the gripper
 spans an object across either of its two thinner axes; in particular from above when it rests on its broadest face
-(a flat object 118 x 107 x 41 mm lying flat offered a top-down gripper nothing to close on).
+(docs/decisions/2026-12-07-procedural-extents.md).
 
 Two steps, so that a task key can hash what a mesh is made from: :func:`draw_shape` draws object ``index``'s family
 parameters (a :class:`ProceduralShape`, JSON-able by :meth:`ProceduralShape.spec`), and :func:`build_mesh` turns

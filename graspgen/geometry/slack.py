@@ -172,8 +172,8 @@ def _triangle_areas(triangles: np.ndarray) -> np.ndarray:
 
 
 _SIGN_BATCH = 256
-"""Points whose side of the mesh :func:`_top_outward` settles at a time (a batch's winding numbers cost ~0.1 s on a
-2,000-triangle mesh)."""
+"""Points whose side of the mesh :func:`_top_outward` settles at a time: a batch's winding numbers are the costly
+part, so few are computed past the points the percentile needs (docs/decisions/2026-12-03-coacd-decomposition.md)."""
 
 
 def _top_outward(mesh: trimesh.Trimesh, points: np.ndarray, count: int) -> np.ndarray:

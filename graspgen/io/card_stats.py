@@ -132,8 +132,8 @@ def label_summary(values: np.ndarray, bins: int, unit_range: bool) -> dict[str, 
 
 
 def _ranks(x: np.ndarray) -> np.ndarray:
-    """Ranks 1..n with ties given their average rank (as ``scipy.stats.rankdata``; scipy.stats takes 0.5 s to
-    import, and publish runs in the parent, in series with everything)."""
+    """Ranks 1..n with ties given their average rank (as ``scipy.stats.rankdata``, whose import publish would pay
+    in the parent, in series with everything: docs/decisions/2026-12-03-engine-at-scale.md)."""
     ranks = np.empty(len(x))
     ranks[np.argsort(x, kind="stable")] = np.arange(1, len(x) + 1)
     _, inverse, counts = np.unique(x, return_inverse=True, return_counts=True)

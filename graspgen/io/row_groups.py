@@ -55,9 +55,9 @@ def write_grasps_parquet(
 
 
 COMPACT_TABLES = 32
-"""A row group's tables are made one block every this many tables: a table read from its own small shard holds
-~100 kB besides its data (schema, metadata, buffers), so a group of 1,000 objects' sets held them 10x over; the
-blocks hold the same rows, so the file's bytes do not change."""
+"""A row group's tables are made one block every this many tables: a table read from its own small shard holds its
+schema, metadata and buffers besides its data, many times over in a group of many small tables
+(docs/decisions/2026-12-03-engine-at-scale.md); the blocks hold the same rows, so the file's bytes do not change."""
 
 
 class GroupedParquetWriter:

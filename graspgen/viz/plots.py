@@ -85,7 +85,7 @@ def draw_plots(root: Path, table: pa.Table, stats: Mapping[str, Any], settings: 
 OUTCOME_ROWS = 40
 """Most rows of the outcomes plot's per-object panel: beyond it, objects are sorted by their success share and
 drawn in this many groups of consecutive objects, so the figure (and the memory drawing it takes) stays one size
-however many objects the dataset has (one row per object at 1,000 objects was a 300-inch-tall canvas)."""
+however many objects the dataset has (docs/decisions/2026-12-03-engine-at-scale.md)."""
 
 
 def _outcomes_plot(plt: Any, root: Path, stats: Mapping[str, Any]) -> str:

@@ -11,10 +11,9 @@ largest (z) face and grasps it from above. A case reports where the simulator's 
 *firm* hold (:attr:`graspgen.sim.protocols.RolloutResult.firm`: still in the hand and never moved 5 mm / 5 degrees in
 it) flips.
 
-Measured caveats (studies/mechanics.py): MuJoCo 4 (multiccd on) gives a pad 3-4 contact points on a flat face, so
-box pads resist more torsion than uniform pressure over the face (assets/grippers/README.md); the success label of
-the free-space protocols does not look at rotation in the hand, so for ``pivot`` it only flips through the firm
-hold; the firm hold's 5 degree tolerance lets a bar slip briefly in the shake's angular peaks without failing.
+The free-space protocols' success label does not look at rotation in the hand, so for ``pivot`` it flips only
+through the firm hold. What the cases measured besides the thresholds (box pads' extra torsion, the firm
+tolerance): docs/decisions/2026-12-07-mechanics-caveats.md.
 
 Cases (``kind``): ``slip`` (a box pulled along the pads by gravity and the protocol's peak acceleration: holds iff
 m (g + a) <= 2 mu F), ``heavy`` (the same box with the disturbance off: holds iff m g <= 2 mu F), ``pivot`` (a
@@ -50,12 +49,12 @@ CASES = ("slip", "heavy", "pivot", "wedge")
 BOX = (0.06, 0.06, 0.055)
 BAR = (0.06, 0.4, 0.05)
 #: Offset (m) at which the bar's weight alone reaches the pads' torsional limit: its mass is chosen per gripper and
-#: grip force so (0.4 kg for the Panda's 70 N at friction 0.5, the issue's bar), leaving room either side on the bar.
+#: grip force so (0.4 kg for the Panda's 70 N at friction 0.5), leaving room either side on the bar.
 BAR_REST_OFFSET = 0.12
 WEDGE_HEIGHT = 0.05
 WEDGE_WIDTH = 0.035
 WEDGE_MASS = 0.05
-#: Friction per case: 0.5 as the issue's bar and cube; 0.3 for the wedge (threshold 16.7 degrees).
+#: Friction per case: 0.5 for the bar and cube; 0.3 for the wedge (threshold 16.7 degrees).
 FRICTION = {"slip": 0.5, "heavy": 0.5, "pivot": 0.5, "wedge": 0.3}
 
 

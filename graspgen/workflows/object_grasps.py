@@ -28,28 +28,13 @@ rollouts):
    - ``near_miss``: a copy of an antipodal candidate that succeeded earlier in the loop (its *parent*, drawn
      uniformly from all of them; until the first success, from the batch's own antipodal candidates) moved just far
      enough that the grasp the sampler meant is no longer there (:func:`~graspgen.workflows.near_misses.
-     near_miss_offsets`). Parents that held make
-     near misses of good grasps: most antipodal candidates on hollow or long objects collide at placement (93 % on
-     the calibration mug), and a near miss of a collision is just another collision. Half of them (by a
-     coin flip) are **shifted**: the hand moves in the plane of its pads (TCP y-z) in a uniformly random direction,
-     by the distance at which the parent's contact point leaves the pad face plus ``near_miss_overhang`` (default
-     half the pad face's width, ``pad_size[1] / 2``: Panda 8.7 mm, 2F-85 11 mm): the pads press half a pad away from
-     the spot they were aimed at, so where the surface goes on that far (a broad face) the grasp still holds and
-     where it does not (an edge, a rim, a handle, a curved side) a pad misses or catches a corner. The other half
-     are **tilted**: the hand turns about the TCP by ``near_miss_tilt`` about a uniformly random axis perpendicular
-     to the approach (TCP x-y plane). The default tilt, ``atan(max_width / (2 finger_length))`` (Panda 0.640 rad =
-     37 degrees, 2F-85 0.427 rad), is the smallest at which the base of an open finger (``finger_size[2]`` behind
-     its tip) swings sideways past the grasp's centre line: about the closing axis it sweeps through the space the
-     object fills between the jaws, so the finger or the palm turns into the object unless the object ends before
-     the finger's base (a rim, a handle, a short part). Both sizes come from the gripper's own geometry
-     (``pad_size``, ``finger_size``, ``max_width``), so they mean the same for any gripper. Measured (Panda,
-     ``acronym``, friction 1.0; 3 near misses of each of 29-40 successful antipodal parents on the bundled box, mug,
-     can, bowl, bottle and wedge): the default shift keeps 38-59 % of them successful, the default tilt 43-65 %; a
-     3 mm overhang would keep 62-80 % and a 0.2 rad tilt 78-97 %: too close to the parent to be negatives. So
-     about half of the near misses of good grasps fail: the negatives a learned grasp model finds hardest, one pad
-     or one finger length from a good grasp; the other half are positives beside known ones (on the calibration
-     mug, where 6 % of the antipodal candidates hold, three quarters of the positives; lower
-     ``near_miss_fraction`` for more distinct contact pairs among them). Their width is the parent's.
+     near_miss_offsets`). Half of them (by a coin flip) are **shifted**: the hand moves in the plane of its pads
+     (TCP y-z) in a uniformly random direction, by the distance at which the parent's contact point leaves the pad
+     face plus ``near_miss_overhang`` (default half the pad face's width, ``pad_size[1] / 2``). The other half are
+     **tilted**: the hand turns about the TCP by ``near_miss_tilt`` about a uniformly random axis perpendicular to
+     the approach (TCP x-y plane; default ``atan(max_width / (2 finger_length))``, the smallest tilt that swings an
+     open finger's base past the grasp's centre line). Their width is the parent's. Why successful parents and these
+     sizes, and how many of the near misses fail: docs/decisions/2026-12-07-near-miss-offsets.md.
 
 2. **Rollouts** in free space (:func:`free_space_simulator`: the object alone, :func:`graspgen.sim.scene_model.
    free_space_spec`, the gripper attached; compiled once) with a free-space protocol of :mod:`graspgen.sim.protocols`:
@@ -61,8 +46,8 @@ rollouts):
    ``collision_share_of_negatives`` of ``target_negatives``), and the loop stops when both targets are met or
    ``max_candidates`` rollouts were made. "Success" is the ``label`` setting's: ``firm`` (default: outcome 5 with
    the object's motion in the hand within the firm-hold tolerances, :mod:`graspgen.sim.lift`; held-but-not-firm
-   grasps are then negatives) or ``held`` (outcome 5: the object still between the fingers, ACRONYM's label, the
-   set as it was before the firm label existed). Both labels are in every row (``success``, ``firm``).
+   grasps are then negatives) or ``held`` (outcome 5: the object still between the fingers, ACRONYM's label). Both
+   labels are in every row (``success``, ``firm``).
 
 3. **Labels per kept row**: the rollout's outcome, ACRONYM's four motion measures, the finger contacts at the end of
    closing in the object frame (mapped with the object's pose when closing ended, so exactly), the Ferrari-Canny
