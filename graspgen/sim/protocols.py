@@ -455,7 +455,7 @@ class LiftParams:
     """Maximum line-search iterations per solver iteration."""
     integrator: str = "implicitfast"
     """``"implicitfast"`` (implicit in the stiff jaw damping), ``"implicit"``, ``"euler"`` or ``"rk4"``."""
-    pad_torsion: str = field(default="face", metadata={KEY_OMIT_DEFAULT: True})
+    pad_torsion: str = field(default="patch", metadata={KEY_OMIT_DEFAULT: True})
     """The pads' torsional friction arm: ``"face"``, the whole pad face's (:func:`graspgen.sim.gripper_model.
     pad_torsion_arm`), or ``"patch"``, the part of the face the target covers once the jaws have closed
     (:mod:`graspgen.sim.pad_patch`)."""
