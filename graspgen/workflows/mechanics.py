@@ -14,7 +14,10 @@ it) flips.
 Measured caveats (studies/mechanics.py): MuJoCo 4 (multiccd on) gives a pad 3-4 contact points on a flat face, so
 box pads resist more torsion than uniform pressure over the face (assets/grippers/README.md); the success label of
 the free-space protocols does not look at rotation in the hand, so for ``pivot`` it only flips through the firm
-hold; the firm hold's 5 degree tolerance lets a bar slip briefly in the shake's angular peaks without failing.
+hold; the firm hold's 5 degree tolerance lets a bar slip briefly in the shake's angular peaks without failing; the
+2F-85 linkage hands (``robotiq_2f85_mesh``, the airo-models URDF) close on the slip box's palm-side edges with their
+inner knuckles, 0.8 mm short of the pads, so their slip cases measure those links, not the pads
+(docs/decisions/2026-12-07-2f85-knuckle-slip.md).
 
 Cases (``kind``): ``slip`` (a box pulled along the pads by gravity and the protocol's peak acceleration: holds iff
 m (g + a) <= 2 mu F), ``heavy`` (the same box with the disturbance off: holds iff m g <= 2 mu F), ``pivot`` (a
