@@ -13,7 +13,8 @@ it) flips.
 
 The free-space protocols' success label does not look at rotation in the hand, so for ``pivot`` it flips only
 through the firm hold. What the cases measured besides the thresholds (box pads' extra torsion, the firm
-tolerance): docs/decisions/2026-12-07-mechanics-caveats.md.
+tolerance): docs/decisions/2026-12-07-mechanics-caveats.md; why the 2F-85 linkage hands' slip cases measure their
+inner knuckles, not their pads: docs/decisions/2026-12-07-2f85-knuckle-slip.md.
 
 Cases (``kind``): ``slip`` (a box pulled along the pads by gravity and the protocol's peak acceleration: holds iff
 m (g + a) <= 2 mu F), ``heavy`` (the same box with the disturbance off: holds iff m g <= 2 mu F), ``pivot`` (a
