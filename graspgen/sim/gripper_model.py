@@ -83,9 +83,10 @@ model: :mod:`graspgen.sim.gripper_state`):
   resists torsion too; the Panda's pivot threshold lands within 4 % of ``mu F r_mean``, box pads resist 35-40 %
   more. Rolling friction is not derived: the bundled pads are condim 4 (a flat pad resists tipping by shifting its
   pressure, not by friction), so rolling is the larger of the two geoms' values, as before, and unused.
-  With ``LiftParams.pad_torsion = "patch"`` (opt-in; the default is ``"face"``) the simulator replaces the whole
-  face by the part of it the object presses once the jaws have closed (:mod:`graspgen.sim.pad_patch`): the pads
-  then carry the value and the objects 0. Each pad has a box site ``<prefix><side>_face`` on its contact face.
+  With ``LiftParams.pad_torsion = "patch"`` (the default; ``"face"`` keeps the whole face) the simulator replaces
+  the whole face by the pressure of the patch the object presses once the jaws have closed
+  (:mod:`graspgen.sim.pad_patch`): the pads then carry the value and the objects 0 until then. Each pad has a box
+  site ``<prefix><side>_face`` on its contact face.
 
 Physics settings that hold objects (timestep 2 ms, elliptic cones, impratio 10, implicitfast):
 :mod:`graspgen.sim.physics`.

@@ -456,9 +456,9 @@ class LiftParams:
     integrator: str = "implicitfast"
     """``"implicitfast"`` (implicit in the stiff jaw damping), ``"implicit"``, ``"euler"`` or ``"rk4"``."""
     pad_torsion: str = field(default="patch", metadata={KEY_OMIT_DEFAULT: True})
-    """The pads' torsional friction arm: ``"face"``, the whole pad face's (:func:`graspgen.sim.gripper_model.
-    pad_torsion_arm`), or ``"patch"``, the part of the face the target covers once the jaws have closed
-    (:mod:`graspgen.sim.pad_patch`)."""
+    """The pads' torsional friction arm: ``"patch"``, that of the pressure the target puts on the pad's face once
+    the jaws have closed (:mod:`graspgen.sim.pad_patch`), or ``"face"``, the whole pad face's for every grasp
+    (:func:`graspgen.sim.gripper_model.pad_torsion_arm`, the upper end)."""
 
     def __post_init__(self) -> None:
         check_protocol("protocol", self.protocol)
