@@ -7,6 +7,7 @@ only read arguments, call it and print. Errors a user can cause are one line and
 # No `from __future__ import annotations`: Typer reads the annotations at run time.
 
 import json
+import os
 import time
 from pathlib import Path
 from typing import Annotated, Any
@@ -106,7 +107,12 @@ def train_cmd(
     ] = 0.0,
     epochs: Annotated[int, typer.Option("--epochs", help="Passes over the training grasps.", min=1)] = 10,
     seed: Annotated[int, typer.Option("--seed", help="Seed of every draw (samples, weights, batches).", min=0)] = 0,
-    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Workers of the sim labels (0 = all cores).")] = 1,
+    members: Annotated[
+        int | None, typer.Option("--members", help="Networks trained from independent draws; their mean probability "
+                                 "is the score (an ensemble; default: TrainParams.members, 1).", min=1)
+    ] = None,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Workers of the sim labels and of the ensemble's members "
+                                      "(0 = all cores).")] = 1,
 ) -> None:
     """Train a grasp evaluator on labelled grasps and write it (--out); print grasps, objects and seconds."""
     console = Console(stderr=True)
@@ -124,8 +130,9 @@ def train_cmd(
         sets = _sets(grasps, mesh_root, labels, per_object, seed, jobs)
         gripper = _one_gripper(sets)
         train, valid = (split_by_object(sets, valid_fraction, "probe") if valid_fraction > 0 else (sets, []))
-        model = train_evaluator(train, TrainParams(epochs=epochs, seed=seed), FeatureParams(), gripper=gripper,
-                                valid=valid or None)
+        params = TrainParams(epochs=epochs, seed=seed, **({} if members is None else {"members": members}))
+        model = train_evaluator(train, params, FeatureParams(), gripper=gripper, valid=valid or None,
+                                jobs=jobs if jobs > 0 else os.cpu_count() or 1)
         report = score_report(valid, model.score(valid, seed=seed)) if valid else None
     except (*USER_ERRORS, ValueError) as exc:
         fail(console, _line(exc))

@@ -125,15 +125,22 @@ def run_sets(run: Path, label: str | None = None) -> list[ObjectGraspSet]:
 
 
 def _cpu() -> float:
-    t = os.times()
-    return t.user + t.system
+    t = os.times()  # with the members' worker processes once they have exited
+    return t.user + t.system + t.children_user + t.children_system
 
 
-def _train(sets, seed: int):
+def _members() -> int:
+    from graspgen.learn.train import TrainParams
+
+    return TrainParams().members
+
+
+def _train(sets, seed: int, jobs: int = 1):
+    """A network of the default :class:`TrainParams` (``jobs``: processes training an ensemble's members)."""
     from graspgen.learn.train import TrainParams, train_evaluator
 
     wall, cpu = time.perf_counter(), _cpu()
-    model = train_evaluator(sets, TrainParams(seed=seed), FeatureParams())
+    model = train_evaluator(sets, TrainParams(seed=seed), FeatureParams(), jobs=max(1, jobs))
     return model, {"seconds": time.perf_counter() - wall, "cpu_seconds": _cpu() - cpu,
                    "grasps": int(sum(len(s.label) for s in sets)), "objects": len(sets)}
 
@@ -142,7 +149,8 @@ def _measures(report: dict) -> dict:
     return {k: report.get(k) for k in ("auc", "ap", "mean_object_auc", "base_rate", "n")}
 
 
-def cross_source(train: dict[str, list], valid: dict[str, list], seed: int, models: dict | None = None) -> dict:
+def cross_source(train: dict[str, list], valid: dict[str, list], seed: int, models: dict | None = None,
+                 jobs: int = 1) -> dict:
     """Every training source's network and GBT on every validation label source (the networks into ``models``)."""
     from graspgen.learn.baselines import baselines
     from graspgen.learn.report import score_report
@@ -151,7 +159,7 @@ def cross_source(train: dict[str, list], valid: dict[str, list], seed: int, mode
     for source, sets in train.items():
         if not sets:
             continue
-        model, timing = _train(sets, seed)
+        model, timing = _train(sets, seed, jobs)
         if models is not None:
             models[source] = model
         row = {"train": timing, "eval": {}}
@@ -166,7 +174,7 @@ def cross_source(train: dict[str, list], valid: dict[str, list], seed: int, mode
     return out
 
 
-def learning_curve(sets: list, valid: dict[str, list], seed: int) -> list[dict]:
+def learning_curve(sets: list, valid: dict[str, list], seed: int, jobs: int = 1) -> list[dict]:
     """Source (b) trained on the first 5, 10, 20 and all training meshes (seeded order of the meshes)."""
     from graspgen.learn.report import score_report
 
@@ -175,7 +183,7 @@ def learning_curve(sets: list, valid: dict[str, list], seed: int) -> list[dict]:
     rows = []
     for n in [*[c for c in CURVE if c < len(order)], len(order)]:
         keep = set(order[:n])
-        model, timing = _train([s for s in sets if s.group in keep], seed)
+        model, timing = _train([s for s in sets if s.group in keep], seed, jobs)
         rows.append({"meshes": n, "train": timing,
                      **{t: _measures(score_report(v, model.score(v))) for t, v in valid.items()}})
         print(f"  {n:3d} meshes: " + "  ".join(f"{t} auc {rows[-1][t]['auc']:.3f} object-auc "
@@ -220,7 +228,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--learn", type=Path, default=DEFAULT_LEARN, help="folder of ACRONYM files (../shared/learn)")
     ap.add_argument("--per-object", type=int, default=500, help="grasps per file, a fixed seeded sample")
-    ap.add_argument("-j", "--jobs", type=int, default=1, help="worker processes for the sim labels")
+    ap.add_argument("-j", "--jobs", type=int, default=1,
+                    help="worker processes for the sim labels and the ensembles' members")
     ap.add_argument("--ours", action="append", default=[], metavar="RUN[:LABEL]",
                     help="run folder of `gen run object_grasps` for (c), optionally with the label to read (held, "
                          "firm; default: the sets' own); repeat for several (c) rows")
@@ -267,12 +276,12 @@ def main() -> None:
     models: dict = {}
     train_seed = args.seed if args.train_seed is None else args.train_seed
     table = cross_source({"a_flex": flex_train, "b_sim": sim_train, "b_firm": firm_train, **ours}, valid,
-                         train_seed, models)
+                         train_seed, models, args.jobs)
     _print_table(table)
     result = {"learn": str(args.learn), "per_object": args.per_object, "excluded": args.exclude,
               "valid_fraction": VALID_FRACTION, "salt": SALT, "train_objects": sorted(s.name for s in flex_train),
               "valid_objects": sorted(s.name for s in flex_valid), "cross_source": table,
-              "seed": args.seed, "train_seed": train_seed,
+              "seed": args.seed, "train_seed": train_seed, "members": _members(),
               "label_seconds": label_seconds, "platform": platform.platform(), "cpus": os.cpu_count()}
     if args.pick:
         source = next(iter(ours), "b_sim")
@@ -285,7 +294,7 @@ def main() -> None:
         print(f"  mean: top {result['pick']['top_success']:.3f}, random {result['pick']['random_success']:.3f}")
     if args.curve:
         print("\nlearning curve, trained on (b) sim labels:")
-        result["learning_curve"] = learning_curve(sim_train, valid, train_seed)
+        result["learning_curve"] = learning_curve(sim_train, valid, train_seed, args.jobs)
     args.out.write_text(json.dumps(result, indent=1))
     print(f"\nwrote {args.out}")
 

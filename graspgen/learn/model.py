@@ -16,7 +16,7 @@ except ImportError:  # one clear error naming the install, not a bare ModuleNotF
     raise
 from torch import nn  # noqa: E402
 
-__all__ = ["PointNetEvaluator"]
+__all__ = ["EvaluatorEnsemble", "PointNetEvaluator"]
 
 
 class PointNetEvaluator(nn.Module):
@@ -34,3 +34,25 @@ class PointNetEvaluator(nn.Module):
         xyz = points[..., :3] / self.length_scale
         h = self.point_mlp(torch.cat([xyz, points[..., 3:]], dim=-1)).amax(dim=1)
         return self.head(torch.cat([h, (width / self.length_scale)[:, None]], dim=1)).squeeze(1)
+
+
+class EvaluatorEnsemble(nn.Module):
+    """Members trained from independent draws on the same grasps (a deep ensemble, Lakshminarayanan et al. 2017).
+
+    forward(points (b, rows, channels) float32, width (b,) float32 m) -> (b,) logits of the members' mean success
+    probability, computed in log space so that confident members do not round to a tie at 1.0.
+    """
+
+    def __init__(self, members: list[PointNetEvaluator]) -> None:
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError(f"members: an ensemble needs at least 2, got {len(members)}")
+        self.members = nn.ModuleList(members)
+        self.length_scale = members[0].length_scale
+
+    def forward(self, points: torch.Tensor, width: torch.Tensor) -> torch.Tensor:
+        logits = torch.stack([m(points, width) for m in self.members])
+        log_k = torch.log(torch.tensor(float(len(self.members)), dtype=logits.dtype))
+        log_p = torch.logsumexp(nn.functional.logsigmoid(logits), dim=0) - log_k
+        log_q = torch.logsumexp(nn.functional.logsigmoid(-logits), dim=0) - log_k
+        return log_p - log_q

@@ -53,8 +53,9 @@ def run_probe(sets, params: ProbeParams, *, seed: int) -> tuple[TrainedModel, di
     if len(grippers) != 1:
         raise InputError(f"probe sets: expected one gripper, got {grippers}")
     train, valid = split_by_object(sets, params.valid_fraction, params.salt)
+    # one network: the probe's held-out AUC measures what the data teaches, which an ensemble would not change
     train_params = TrainParams(epochs=params.epochs, batch_size=params.batch_size, learning_rate=params.learning_rate,
-                               seed=seed, threads=1)
+                               seed=seed, threads=1, members=1)
     model = train_evaluator(train, train_params, params.features, gripper=grippers[0])
     report = {
         "split": {"train_objects": [s.name for s in train], "valid_objects": [s.name for s in valid],

@@ -28,14 +28,16 @@ except ImportError:  # one clear error naming the install, not a bare ModuleNotF
 from graspgen.errors import InputError, SettingsError
 from graspgen.io.atomic import atomic_path
 from graspgen.learn.features import CHANNELS, FEATURE_VERSION, FeatureParams, set_features
-from graspgen.learn.model import PointNetEvaluator
+from graspgen.learn.model import EvaluatorEnsemble, PointNetEvaluator
 from graspgen.validation import check_bool, check_int, check_number
 
 __all__ = ["BalancedBatches", "GraspDataset", "TrainParams", "TrainedModel", "load_model", "save_model",
            "train_evaluator"]
 
 MODEL_FORMAT = "graspgen.learn.PointNetEvaluator/1"
-"""``format`` of a model file's metadata."""
+"""``format`` of a model file's metadata (one network)."""
+ENSEMBLE_FORMAT = "graspgen.learn.EvaluatorEnsemble/1"
+"""``format`` of a model file of several members (its metadata says how many)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +59,10 @@ class TrainParams:
     augment: bool = True
     """Rotate half the grasps by pi about the approach axis (z): (x, y) -> (-x, -y), a symmetry of a parallel
     jaw."""
+    members: int = 1
+    """Networks trained on the same grasps from independent draws (initial weights, batch order, augmentation);
+    more than one makes an ensemble whose score is their mean probability. Member 0 draws from ``seed``, so one
+    member is the single network of that seed."""
 
     def __post_init__(self) -> None:
         check_int("epochs", self.epochs, low=1)
@@ -68,6 +74,7 @@ class TrainParams:
         check_int("seed", self.seed, low=0)
         check_int("threads", self.threads, low=1)
         check_bool("augment", self.augment)
+        check_int("members", self.members, low=1)
 
 
 class GraspDataset(torch.utils.data.Dataset):
@@ -116,7 +123,7 @@ class BalancedBatches:
 class TrainedModel:
     """A trained evaluator and what it needs to score grasps."""
 
-    module: PointNetEvaluator
+    module: PointNetEvaluator | EvaluatorEnsemble
     feature_params: FeatureParams
     gripper: str
     """Gripper name the features were made for."""
@@ -136,7 +143,9 @@ class TrainedModel:
         with torch.no_grad():
             for s in sets:
                 f, w = set_features([s], spec, self.feature_params, seed)
-                p = [torch.sigmoid(self.module(torch.from_numpy(f[i : i + 4096]), torch.from_numpy(w[i : i + 4096])))
+                # float64 before the sigmoid: in float32 every logit above ~17 is 1.0, a tie for the ranking
+                p = [torch.sigmoid(self.module(torch.from_numpy(f[i : i + 4096]),
+                                               torch.from_numpy(w[i : i + 4096])).double())
                      for i in range(0, len(w), 4096)]
                 out.append(torch.cat(p).double().numpy() if p else np.zeros(0))
         return out
@@ -149,30 +158,24 @@ def _augment(points: torch.Tensor, g: torch.Generator) -> torch.Tensor:
     return points * sign
 
 
-def train_evaluator(sets, params: TrainParams, feature_params: FeatureParams | None = None, *, gripper=None,
-                    valid=None) -> TrainedModel:
-    """Train on ``sets`` (ObjectGraspSet list, one gripper). ``valid`` (optional): its loss per epoch goes into
-    ``train_info["valid_loss"]`` (reported only; nothing is chosen by it)."""
-    from graspgen.grippers import load_gripper
+def member_seed(seed: int, member: int) -> int:
+    """The seed of ensemble member ``member``: ``seed`` itself for member 0, else a SeedSequence of both."""
+    if member == 0:
+        return int(seed)
+    return int(np.random.SeedSequence([int(seed), int(member)]).generate_state(1, np.uint64)[0] >> 2)
 
-    feature_params = feature_params or FeatureParams()
-    names = sorted({s.gripper for s in sets})
-    gripper = gripper or (names[0] if len(names) == 1 else None)
-    if gripper is None or names not in ([], [gripper]):
-        raise InputError(f"training sets: expected one gripper, got {names}")
-    spec = load_gripper(gripper)
-    start, cpu = time.perf_counter(), time.process_time()
-    data = GraspDataset(sets, spec, feature_params, params.seed)
-    held = GraspDataset(valid, spec, feature_params, params.seed) if valid else None
-    feat_seconds = time.perf_counter() - start
+
+def _train_member(data: GraspDataset, held: GraspDataset | None, params: TrainParams, seed: int,
+                  length_scale: float) -> tuple[PointNetEvaluator, list[float], list[float]]:
+    """One network from the draws of ``seed``: (module, training loss per epoch, held-out loss per epoch)."""
     threads, determ = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
     torch.set_num_threads(params.threads)
     torch.use_deterministic_algorithms(True)
     try:
-        g = torch.Generator().manual_seed(params.seed)
+        g = torch.Generator().manual_seed(seed)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(torch.randint(0, 2**62, (1,), generator=g)))  # nn.Linear init draws globally
-            module = PointNetEvaluator(length_scale=spec.max_width / 2, channels=CHANNELS)
+            module = PointNetEvaluator(length_scale=length_scale, channels=CHANNELS)
         opt = torch.optim.Adam(module.parameters(), lr=params.learning_rate, weight_decay=params.weight_decay)
         loss_fn = torch.nn.BCEWithLogitsLoss()
         batches = BalancedBatches(data.label, params.batch_size, g)
@@ -197,10 +200,45 @@ def train_evaluator(sets, params: TrainParams, feature_params: FeatureParams | N
     finally:
         torch.set_num_threads(threads)
         torch.use_deterministic_algorithms(determ)
+    return module.eval(), losses, valid_losses
+
+
+def train_evaluator(sets, params: TrainParams, feature_params: FeatureParams | None = None, *, gripper=None,
+                    valid=None, jobs: int = 1) -> TrainedModel:
+    """Train on ``sets`` (ObjectGraspSet list, one gripper). ``valid`` (optional): its loss per epoch goes into
+    ``train_info["valid_loss"]`` (reported only; nothing is chosen by it). ``jobs``: worker processes training the
+    members of an ensemble (each with ``params.threads`` threads; the weights do not depend on it)."""
+    from graspgen.grippers import load_gripper
+
+    feature_params = feature_params or FeatureParams()
+    jobs = check_int("jobs", jobs, low=1)
+    names = sorted({s.gripper for s in sets})
+    gripper = gripper or (names[0] if len(names) == 1 else None)
+    if gripper is None or names not in ([], [gripper]):
+        raise InputError(f"training sets: expected one gripper, got {names}")
+    spec = load_gripper(gripper)
+    start, cpu = time.perf_counter(), time.process_time()
+    data = GraspDataset(sets, spec, feature_params, params.seed)
+    held = GraspDataset(valid, spec, feature_params, params.seed) if valid else None
+    BalancedBatches(data.label, params.batch_size, torch.Generator())  # a one-class set fails before any training
+    feat_seconds = time.perf_counter() - start
+    seeds = [member_seed(params.seed, i) for i in range(params.members)]
+    if jobs > 1 and len(seeds) > 1:
+        from joblib import Parallel, delayed
+
+        trained = Parallel(n_jobs=min(jobs, len(seeds)))(
+            delayed(_train_member)(data, held, params, s, spec.max_width / 2) for s in seeds)
+    else:
+        trained = [_train_member(data, held, params, s, spec.max_width / 2) for s in seeds]
+    modules = [t[0] for t in trained]
+    module = modules[0] if len(modules) == 1 else EvaluatorEnsemble(modules)
     info = {"epochs": params.epochs, "grasps": len(data), "objects": len(sets), "seed": params.seed,
-            "loss": losses, "valid_loss": valid_losses, "torch": torch.__version__,
+            "loss": [float(np.mean(v)) for v in zip(*(t[1] for t in trained))],
+            "valid_loss": [float(np.mean(v)) for v in zip(*(t[2] for t in trained))], "torch": torch.__version__,
             "featurize_seconds": feat_seconds, "seconds": time.perf_counter() - start,
             "cpu_seconds": time.process_time() - cpu}
+    if len(modules) > 1:
+        info["members"] = len(modules)
     return TrainedModel(module.eval(), feature_params, gripper, info, physics_summary(sets))
 
 
@@ -224,7 +262,7 @@ def physics_summary(sets) -> dict:
     return out
 
 
-_SAVED_INFO = ("epochs", "grasps", "objects", "seed", "loss")  # no wall-clock: the file must be reproducible
+_SAVED_INFO = ("epochs", "grasps", "objects", "seed", "loss", "members")  # no wall-clock: the file must be reproducible
 
 
 def save_model(model: TrainedModel, path) -> None:
@@ -233,10 +271,13 @@ def save_model(model: TrainedModel, path) -> None:
     -> same bytes, whatever the archive's file name)."""
     from graspgen.io.probe_files import canonical_torch_zip
 
-    meta = {"format": MODEL_FORMAT, "feature_version": FEATURE_VERSION,
+    members = len(model.module.members) if isinstance(model.module, EvaluatorEnsemble) else 1
+    meta = {"format": MODEL_FORMAT if members == 1 else ENSEMBLE_FORMAT, "feature_version": FEATURE_VERSION,
             "feature_params": dataclasses.asdict(model.feature_params), "gripper": model.gripper,
             "length_scale": model.module.length_scale, "physics": model.physics,
             "train_info": {k: model.train_info[k] for k in _SAVED_INFO if k in model.train_info}}
+    if members > 1:
+        meta["members"] = members
     state = OrderedDict((k, v.detach().cpu().contiguous()) for k, v in model.module.state_dict().items())
     buf = io.BytesIO()
     torch.save(OrderedDict([("meta", json.dumps(meta, sort_keys=True)), ("state", state)]), buf)
@@ -255,7 +296,7 @@ def load_model(path) -> TrainedModel:
     try:
         blob: Any = torch.load(path, map_location="cpu", weights_only=True)
         meta = json.loads(blob["meta"])
-        if meta.get("format") != MODEL_FORMAT:
+        if meta.get("format") not in (MODEL_FORMAT, ENSEMBLE_FORMAT):
             raise ValueError(f"format {meta.get('format')!r}")
     except FileNotFoundError:
         raise InputError(f"{where}: no such model file") from None
@@ -264,7 +305,9 @@ def load_model(path) -> TrainedModel:
     if meta["feature_version"] != FEATURE_VERSION:
         raise InputError(f"{where}: features of version {meta['feature_version']}, this graspgen makes version "
                          f"{FEATURE_VERSION}; train the model again")
-    module = PointNetEvaluator(length_scale=meta["length_scale"], channels=CHANNELS)
+    members = [PointNetEvaluator(length_scale=meta["length_scale"], channels=CHANNELS)
+               for _ in range(int(meta.get("members", 1)))]
+    module = members[0] if len(members) == 1 else EvaluatorEnsemble(members)
     module.load_state_dict(blob["state"])
     return TrainedModel(module.eval(), FeatureParams(**meta["feature_params"]), meta["gripper"],
                         dict(meta["train_info"]), dict(meta.get("physics") or {}))

@@ -56,6 +56,20 @@ def test_help_texts():
     assert "--candidates" in invoke("probe", "pick", "--help").output
 
 
+def test_train_members_writes_an_ensemble(files, tmp_path):
+    from graspgen.learn.model import EvaluatorEnsemble
+    from graspgen.learn.train import TrainParams, load_model
+
+    help_text = " ".join(invoke("probe", "train", "--help").output.split())
+    assert f"TrainParams.members, {TrainParams().members})" in help_text.replace("│ ", "")
+    model = tmp_path / "e.pt"
+    result = invoke("probe", "train", "--grasps", files, "--labels", "flex", "--epochs", "2", "--members", "2",
+                    "--jobs", "2", "--out", model)
+    assert result.exit_code == 0, result.output
+    back = load_model(model)
+    assert isinstance(back.module, EvaluatorEnsemble) and len(back.module.members) == 2
+
+
 def test_train_then_eval_round_trip(files, tmp_path):
     model = tmp_path / "m.pt"
     result = invoke("probe", "train", "--grasps", files, "--labels", "flex", "--epochs", "3", "--out", model)
