@@ -109,7 +109,7 @@ def train_cmd(
     seed: Annotated[int, typer.Option("--seed", help="Seed of every draw (samples, weights, batches).", min=0)] = 0,
     members: Annotated[
         int | None, typer.Option("--members", help="Networks trained from independent draws; their mean probability "
-                                 "is the score (an ensemble; default: TrainParams.members, 1).", min=1)
+                                 "is the score (an ensemble; default: TrainParams.members, 5).", min=1)
     ] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Workers of the sim labels and of the ensemble's members "
                                       "(0 = all cores).")] = 1,

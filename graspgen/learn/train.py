@@ -59,10 +59,11 @@ class TrainParams:
     augment: bool = True
     """Rotate half the grasps by pi about the approach axis (z): (x, y) -> (-x, -y), a symmetry of a parallel
     jaw."""
-    members: int = 1
+    members: int = 5
     """Networks trained on the same grasps from independent draws (initial weights, batch order, augmentation);
-    more than one makes an ensemble whose score is their mean probability. Member 0 draws from ``seed``, so one
-    member is the single network of that seed."""
+    more than one makes an ensemble whose score is their mean probability (training costs ``members`` times one
+    network's; docs/decisions/2026-12-07-pick-ensemble.md). Member 0 draws from ``seed``, so ``members=1`` is the
+    single network of that seed."""
 
     def __post_init__(self) -> None:
         check_int("epochs", self.epochs, low=1)

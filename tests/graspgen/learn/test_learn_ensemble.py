@@ -67,7 +67,7 @@ def test_member_zero_is_the_single_network_and_seeds_differ():
     assert member_seed(7, 0) == 7
     assert len({member_seed(7, i) for i in range(5)}) == 5 and member_seed(7, 1) != member_seed(8, 1)
     sets = _boxes(4, 16)
-    single = train_evaluator(sets, TrainParams(epochs=2, batch_size=16, seed=3), SMALL)
+    single = train_evaluator(sets, TrainParams(epochs=2, batch_size=16, seed=3, members=1), SMALL)
     pair = train_evaluator(sets, TrainParams(epochs=2, batch_size=16, seed=3, members=2), SMALL)
     assert isinstance(pair.module, EvaluatorEnsemble) and pair.train_info["members"] == 2
     for k, v in single.module.state_dict().items():

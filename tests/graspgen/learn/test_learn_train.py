@@ -45,7 +45,7 @@ def test_learns_a_geometric_rule_on_held_out_objects():
     from graspgen.learn.report import score_report
 
     train, valid = split_by_object(_boxes(), 0.3, salt="t")
-    model = train_evaluator(train, TrainParams(epochs=12, batch_size=64, seed=1), SMALL)
+    model = train_evaluator(train, TrainParams(epochs=12, batch_size=64, seed=1, members=1), SMALL)
     report = score_report(valid, model.score(valid))
     assert report["auc"] > 0.9, report["auc"]
     assert report["top_k"]["success"] > report["top_k"]["random"]
@@ -54,7 +54,7 @@ def test_learns_a_geometric_rule_on_held_out_objects():
 
 def test_same_data_and_settings_give_the_same_bytes(tmp_path):
     sets = _boxes(4, 16)
-    params = TrainParams(epochs=2, batch_size=16, seed=3)
+    params = TrainParams(epochs=2, batch_size=16, seed=3, members=1)
     blobs = []
     for _ in range(2):
         buf = io.BytesIO()
@@ -62,7 +62,7 @@ def test_same_data_and_settings_give_the_same_bytes(tmp_path):
         blobs.append(buf.getvalue())
     assert blobs[0] == blobs[1]
     other = io.BytesIO()
-    save_model(train_evaluator(sets, TrainParams(epochs=2, batch_size=16, seed=4), SMALL), other)
+    save_model(train_evaluator(sets, TrainParams(epochs=2, batch_size=16, seed=4, members=1), SMALL), other)
     assert other.getvalue() != blobs[0]
     path = tmp_path / "m.pt"
     save_model(train_evaluator(sets, params, SMALL), path)
@@ -87,7 +87,7 @@ def test_load_model_round_trip_and_errors(tmp_path, monkeypatch):
     sets = _boxes(3, 12)
     physics = {"label": "firm", "protocol": "acronym", "friction": 1.0, "density": 150.0, "mass": None}
     sets = [dataclasses.replace(s, physics=physics) for s in sets]
-    model = train_evaluator(sets, TrainParams(epochs=1, batch_size=8), SMALL)
+    model = train_evaluator(sets, TrainParams(epochs=1, batch_size=8, members=1), SMALL)
     path = tmp_path / "m.pt"
     save_model(model, path)
     back = load_model(path)
