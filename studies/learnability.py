@@ -207,7 +207,8 @@ def pick_on_valid(model, files: list[Path], candidates: int, seed: int, jobs: in
         rng = np.random.default_rng([seed, int(hashlib.sha256(f.stem.encode()).hexdigest()[:8], 16)])
         out = simulate_pick(pick(model, mesh, params, rng), model.gripper, params, jobs=jobs)
         rows.append({"name": f.stem, **{k: out[k] for k in ("top_success", "random_success", "top_firm",
-                                                              "random_firm", "n_top", "n_random", "candidates")}})
+                                                              "random_firm", "n_top", "n_random", "candidates",
+                                                              "top_outcomes", "random_outcomes")}})
         print(f"  {f.stem[:48]:<48} top {out['top_success']:.2f} (firm {out['top_firm']:.2f})  random "
               f"{out['random_success']:.2f} (firm {out['random_firm']:.2f})  ({out['candidates']} candidates)",
               flush=True)

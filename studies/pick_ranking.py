@@ -45,7 +45,7 @@ HALVES = 20
 
 def labelled_candidates(f: Path, gripper: str, n: int, seed: int, jobs: int, cache: Path):
     """``n`` candidates on the file's mesh as ``gen probe pick`` samples them, each rolled out: (candidates,
-    held (n,) bool, firm (n,) bool)."""
+    outcome codes (n,) int, firm (n,) bool)."""
     import h5py
 
     from graspgen.learn.pick import PickParams, sample_candidates
@@ -71,7 +71,7 @@ def labelled_candidates(f: Path, gripper: str, n: int, seed: int, jobs: int, cac
         np.savez(path, outcome=table.column("outcome").to_numpy().astype(np.int8),
                  firm=table.column("firm").to_numpy(zero_copy_only=False).astype(bool))
     with np.load(path) as z:
-        return cands, z["outcome"] == 5, z["firm"].astype(bool)
+        return cands, z["outcome"].astype(int), z["firm"].astype(bool)
 
 
 def member_logits(model, cands, name: str, seed: int) -> np.ndarray:
@@ -139,8 +139,9 @@ def main() -> None:
     rows, skipped = [], []
     for f in inner_valid:
         try:
-            cands, held, firm = labelled_candidates(f, model.gripper, args.candidates, args.seed, args.jobs,
-                                                    args.cache)
+            cands, outcome, firm = labelled_candidates(f, model.gripper, args.candidates, args.seed, args.jobs,
+                                                       args.cache)
+            held = outcome == 5
         except InputError as exc:  # a mesh the sampler finds no grasp on is reported and left out, as pick does
             print(f"  {f.stem}: left out ({exc})", flush=True)
             skipped.append({"name": f.stem, "why": str(exc)})
@@ -152,7 +153,9 @@ def main() -> None:
                "firm_rate": float(firm.mean()), "float32_ties_at_one": int(np.sum(p32 == 1.0))}
         for name, rank in rankings.items():
             score = rank(logits)
+            top = np.argsort(-score, kind="stable")[:TOP]
             row[name] = {"top_held": top_rate(score, held), "top_firm": top_rate(score, firm),
+                         "top_outcomes": outcome[top].tolist(),
                          "halves_held": float(np.mean([top_rate(score, held, h) for h in halves]))}
         rows.append(row)
         print(f"  {f.stem[:44]:<44} all {held.mean():.2f}  " + "  ".join(
