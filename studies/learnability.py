@@ -191,20 +191,28 @@ def learning_curve(sets: list, valid: dict[str, list], seed: int, jobs: int = 1)
     return rows
 
 
+def file_pick(f: Path, candidates: int, seed: int):
+    """What ``gen probe pick`` needs for an ACRONYM file: (mesh path, PickParams at the file's scale, friction and
+    density, top 10 of ``candidates``; the generator of ``seed`` and the file's stem)."""
+    import h5py
+
+    from graspgen.learn.pick import PickParams
+
+    with h5py.File(f, "r") as h:
+        mesh, scale = f.parent / h["object/file"][()].decode(), float(h["object/scale"][()])
+        friction, density = float(h["object/friction"][()]), float(h["object/density"][()])
+    params = PickParams(candidates=candidates, top=10, scale=scale, friction=friction, density=density)
+    return mesh, params, np.random.default_rng([seed, int(hashlib.sha256(f.stem.encode()).hexdigest()[:8], 16)])
+
+
 def pick_on_valid(model, files: list[Path], candidates: int, seed: int, jobs: int) -> list[dict]:
     """``gen probe pick`` on every validation file's mesh (its scale; ACRONYM's friction 1.0 and density 150): the
     network's top 10 of ``candidates`` sampled grasps and 10 random ones, rolled out (``acronym`` protocol)."""
-    import h5py
-
-    from graspgen.learn.pick import PickParams, pick, simulate_pick
+    from graspgen.learn.pick import pick, simulate_pick
 
     rows = []
     for f in files:
-        with h5py.File(f, "r") as h:
-            mesh, scale = f.parent / h["object/file"][()].decode(), float(h["object/scale"][()])
-            friction, density = float(h["object/friction"][()]), float(h["object/density"][()])
-        params = PickParams(candidates=candidates, top=10, scale=scale, friction=friction, density=density)
-        rng = np.random.default_rng([seed, int(hashlib.sha256(f.stem.encode()).hexdigest()[:8], 16)])
+        mesh, params, rng = file_pick(f, candidates, seed)
         out = simulate_pick(pick(model, mesh, params, rng), model.gripper, params, jobs=jobs)
         rows.append({"name": f.stem, **{k: out[k] for k in ("top_success", "random_success", "top_firm",
                                                               "random_firm", "n_top", "n_random", "candidates",

@@ -34,7 +34,7 @@ import numpy as np
 
 from graspgen.errors import InputError
 from graspgen.learn.sources import held_out
-from studies.learnability import DEFAULT_LEARN, _files, _group, _is_valid, run_sets
+from studies.learnability import DEFAULT_LEARN, _files, _group, _is_valid, file_pick, run_sets
 
 HERE = Path(__file__).resolve().parent
 INNER_SALT = "pick-inner"
@@ -46,20 +46,15 @@ HALVES = 20
 def labelled_candidates(f: Path, gripper: str, n: int, seed: int, jobs: int, cache: Path):
     """``n`` candidates on the file's mesh as ``gen probe pick`` samples them, each rolled out: (candidates,
     outcome codes (n,) int, firm (n,) bool)."""
-    import h5py
-
-    from graspgen.learn.pick import PickParams, sample_candidates
+    from graspgen.learn.pick import sample_candidates
     from graspgen.learn.sources import _physics_digest
     from graspgen.workflows.evaluate import evaluate_grasps
     from graspgen.workflows.evaluate_settings import EvaluateParams
 
-    with h5py.File(f, "r") as h:
-        mesh, scale = f.parent / h["object/file"][()].decode(), float(h["object/scale"][()])
-        friction, density = float(h["object/friction"][()]), float(h["object/density"][()])
-    params = PickParams(candidates=n, top=TOP, scale=scale, friction=friction, density=density)
-    rng = np.random.default_rng([seed, int(hashlib.sha256(f.stem.encode()).hexdigest()[:8], 16)])
+    mesh, params, rng = file_pick(f, n, seed)
     cands = sample_candidates(mesh, gripper, n, rng, params)
-    evaluate = EvaluateParams(friction=friction, density=density, max_extent=params.max_extent)
+    scale = params.scale
+    evaluate = EvaluateParams(friction=params.friction, density=params.density, max_extent=params.max_extent)
     key = hashlib.sha256(mesh.read_bytes())
     key.update(json.dumps([scale, gripper, repr(evaluate), _physics_digest()]).encode())
     key.update(cands.T_tcp.tobytes() + cands.width.tobytes())
