@@ -142,8 +142,9 @@ def train_cmd(
     except OSError as exc:
         fail(console, f"{output}: cannot write the model ({os_error_text(exc)})", code=1)
     n = sum(len(s.label) for s in train)
-    console.print(f"trained on {n} grasps of {len(train)} objects ({gripper}) in {time.perf_counter() - start:.1f} s",
-                  highlight=False)
+    nets = model.train_info.get("members", 1)
+    console.print(f"trained on {n} grasps of {len(train)} objects ({gripper}), {nets} network{'s' * (nets > 1)}, in "
+                  f"{time.perf_counter() - start:.1f} s", highlight=False)
     if report is not None:
         console.print(f"held out {report['n']} grasps of {len(valid)} objects: auc {_num(report['auc'])}, mean "
                       f"per-object auc {_num(report['mean_object_auc'])}", highlight=False)

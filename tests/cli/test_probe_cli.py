@@ -74,7 +74,7 @@ def test_train_then_eval_round_trip(files, tmp_path):
     model = tmp_path / "m.pt"
     result = invoke("probe", "train", "--grasps", files, "--labels", "flex", "--epochs", "3", "--out", model)
     assert result.exit_code == 0, result.output
-    assert "trained on 120 grasps of 2 objects (panda)" in result.output and model.is_file()
+    assert "trained on 120 grasps of 2 objects (panda), 5 networks" in result.output and model.is_file()
     report = tmp_path / "r.json"
     result = invoke("probe", "eval", "--model", model, "--grasps", files / "Box_a_0.01.h5", "--grasps",
                     files / "Box_b_0.01.h5", "--labels", "flex", "--json", report)
