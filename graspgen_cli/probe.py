@@ -223,6 +223,10 @@ def pick_cmd(
         float | None, typer.Option("--friction", help="Object friction of the rollouts (default: the model's "
                                    "training physics, else 1.0).", min=0.0)
     ] = None,
+    hand_check: Annotated[
+        int, typer.Option("--hand-check", help="Surface points tested against the open hand before choosing: the "
+                          "top K are drawn from the candidates whose hand holds none (0: no check).", min=0)
+    ] = 20000,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the candidates and the random pick.", min=0)] = 0,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="Workers of the rollouts (0 = all cores).")] = 1,
 ) -> None:
@@ -244,7 +248,7 @@ def pick_cmd(
             raise ValueError(f"--mesh: {mesh}: no such file")
         model = load_model(model_path)
         learned = model.physics
-        params = PickParams(candidates=candidates, top=top, scale=scale,
+        params = PickParams(candidates=candidates, top=top, scale=scale, hand_check_points=hand_check,
                             density=density if density is not None else learned.get("density") or 700.0,
                             friction=friction if friction is not None else learned.get("friction") or 1.0)
         result = pick(model, mesh, params, np.random.default_rng(seed))
@@ -259,4 +263,9 @@ def pick_cmd(
                   f"{summary['n_random']} random {100 * summary['random_success']:.0f}% "
                   f"({100 * summary['random_firm']:.0f}% firm); density {params.density:g} kg/m^3, friction "
                   f"{params.friction:g}", highlight=False)
+    if "clear_candidates" in summary:
+        clear = summary["random_clear_success"]
+        console.print(f"{summary['clear_candidates']} candidates clear of the open hand; "
+                      f"{len(summary['random_clear_outcomes'])} random "
+                      f"of them {'-' if clear is None else f'{100 * clear:.0f}%'} success", highlight=False)
     print(json_path)

@@ -99,23 +99,58 @@ def top_rate(score: np.ndarray, label: np.ndarray, idx: np.ndarray | None = None
     return float(np.mean(label[order]))
 
 
+def hand_check(files: list[Path], gripper: str, n: int, points: int, seed: int, cache: Path) -> list[dict]:
+    """A geometric check before any network: the candidates whose open hand (its boxes) holds any of ``points``
+    surface points, against the rollouts' collisions at placement (outcome 1)."""
+    from graspgen.grippers import load_gripper
+    from graspgen.learn.features import hand_boxes, surface_points
+    from graspgen.learn.pick import hand_hits
+
+    boxes = hand_boxes(load_gripper(gripper))
+    rows = []
+    for f in files:
+        try:
+            cands, outcome, _ = labelled_candidates(f, gripper, n, seed, 1, cache)
+        except InputError:
+            continue
+        P = surface_points(cands.vertices, cands.faces, points, np.random.default_rng([seed, 11]))
+        hit, collided, held = hand_hits(P, cands.T_tcp, boxes), outcome == 1, outcome == 5
+        rows.append({"name": f.stem, "collisions": int(collided.sum()), "caught": int((hit & collided).sum()),
+                     "held": int(held.sum()), "held_flagged": int((hit & held).sum()), "kept": int((~hit).sum()),
+                     "held_rate_kept": float(held[~hit].mean()) if (~hit).any() else None,
+                     "held_rate_all": float(held.mean())})
+        r = rows[-1]
+        print(f"  {f.stem[:44]:<44} collisions caught {r['caught']}/{r['collisions']}, held flagged "
+              f"{r['held_flagged']}/{r['held']}, held among the rest {r['held_rate_kept']:.2f} "
+              f"(all {r['held_rate_all']:.2f})", flush=True)
+    return rows
+
+
 def main() -> None:
     from graspgen.learn.features import FeatureParams
     from graspgen.learn.train import TrainParams, train_evaluator
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--learn", type=Path, default=DEFAULT_LEARN)
-    ap.add_argument("--ours", type=Path, required=True, help="run folder of gen run object_grasps (training files)")
+    ap.add_argument("--ours", type=Path, default=None, help="run folder of gen run object_grasps (training files)")
     ap.add_argument("--members", type=int, default=5)
     ap.add_argument("--candidates", type=int, default=1000)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("-j", "--jobs", type=int, default=1)
     ap.add_argument("--cache", type=Path, default=Path(".cache") / "pick_ranking")
     ap.add_argument("--out", type=Path, default=HERE / "results_pick_ranking.json")
+    ap.add_argument("--hand-check", type=int, default=0, metavar="POINTS",
+                    help="only the geometric check of the open hand against POINTS surface points (no network)")
     args = ap.parse_args()
 
     train_files = [f for f in _files(args.learn) if not _is_valid(_group(f))]
     inner_valid = [f for f in train_files if held_out(_group(f), INNER_FRACTION, INNER_SALT)]
+    if args.hand_check:
+        rows = hand_check(inner_valid, "panda", args.candidates, args.hand_check, args.seed, args.cache)
+        out = args.out.with_name(args.out.stem + "_hand_check.json")
+        out.write_text(json.dumps({"points": args.hand_check, "objects": rows}, indent=1))
+        print(f"wrote {out}")
+        return
     sets = [s for s in run_sets(args.ours) if not held_out(s.group, INNER_FRACTION, INNER_SALT)]
     leaked = {s.group for s in sets} & {_group(f) for f in inner_valid}
     assert not leaked and not any(_is_valid(s.group) for s in sets), "inner split leaks"

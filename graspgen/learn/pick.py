@@ -9,7 +9,9 @@ more often than picking at random?
    whole sphere as the object-grasps stage draws them (:func:`graspgen.geometry.antipodal.sample_antipodal` with
    ``approach="any"``: every call's candidates shuffled, calls repeated until ``n`` are there).
 2. :func:`pick`: the model scores every candidate (:meth:`graspgen.learn.train.TrainedModel.score`); the top ``k``
-   by score (ties by candidate index) and ``k`` drawn uniformly without replacement from all candidates.
+   by score (ties by candidate index) among the candidates whose open hand holds none of ``hand_check_points``
+   surface points (:func:`hand_hits`: the others would strike the object at placement), and ``k`` drawn uniformly
+   without replacement from all candidates, and ``k`` from the clear ones.
 3. :func:`simulate_pick`: both groups rolled out with :func:`graspgen.workflows.evaluate.evaluate_grasps` (the model's
    gripper, the ``acronym`` protocol: placed open, close, shake; friction 1.0 as the object-grasps stage uses);
    the success rate of each.
@@ -31,11 +33,12 @@ from graspgen.geometry.mesh_io import load_mesh
 from graspgen.geometry.repair import repair_mesh
 from graspgen.geometry.units import normalize_units
 from graspgen.grippers import load_gripper
+from graspgen.learn.features import hand_boxes, surface_points
 from graspgen.learn.sources import ObjectGraspSet
 from graspgen.validation import check, check_int, check_number, check_rng
 from graspgen.workflows.object_grasps_settings import free_space_sampler
 
-__all__ = ["Candidates", "Pick", "PickParams", "pick", "sample_candidates", "simulate_pick"]
+__all__ = ["Candidates", "Pick", "PickParams", "hand_hits", "pick", "sample_candidates", "simulate_pick"]
 
 EMPTY_CALLS = 3
 """Consecutive sampler calls without a candidate after which the mesh is given up (too big or too thin for the
@@ -62,6 +65,10 @@ class PickParams:
     """Object friction of the rollouts (dimensionless; 1.0: ACRONYM's and the object-grasps stage's)."""
     density: float = 700.0
     """Object density of the rollouts, kg/m^3 (ACRONYM's files: 150)."""
+    hand_check_points: int = 20000
+    """Surface points tested against the open hand's boxes (:func:`graspgen.learn.features.hand_boxes`) before the
+    top group is chosen: a candidate whose hand holds any of them would strike the object at placement and is not
+    picked (0: no check). docs/decisions/2026-12-07-pick-ensemble.md."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "candidates", check_int("candidates", self.candidates, low=1))
@@ -75,6 +82,7 @@ class PickParams:
         object.__setattr__(self, "max_extent", check_number("max_extent", self.max_extent, low=0.0, low_open=True))
         object.__setattr__(self, "friction", check_number("friction", self.friction, low=0.0, low_open=True))
         object.__setattr__(self, "density", check_number("density", self.density, low=0.0, low_open=True))
+        object.__setattr__(self, "hand_check_points", check_int("hand_check_points", self.hand_check_points, low=0))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,6 +152,10 @@ class Pick:
     """``(k,) int64`` indices of the ``k`` best-scored candidates, best first."""
     random: np.ndarray
     """``(k,) int64`` indices of ``k`` candidates drawn uniformly without replacement."""
+    clear: np.ndarray | None = None
+    """``(n,) bool`` candidates whose open hand holds no surface point (None: not checked)."""
+    random_clear: np.ndarray | None = None
+    """``(k,) int64`` indices of ``k`` candidates drawn uniformly from the clear ones (None: not checked)."""
 
 
 def pick(model: Any, mesh_path: str | Path, params: PickParams, rng: np.random.Generator) -> Pick:
@@ -159,9 +171,28 @@ def pick(model: Any, mesh_path: str | Path, params: PickParams, rng: np.random.G
                                    label=np.zeros(n, dtype=bool), gripper=model.gripper, source="candidates")
     scores = np.asarray(model.score([candidate_set], seed=int(rng.integers(0, 2**31 - 1)))[0], dtype=np.float64)
     k = min(params.top, n)
-    top = np.argsort(-scores, kind="stable")[:k]
-    random = np.sort(rng.choice(n, size=k, replace=False))
-    return Pick(candidates=cands, scores=scores, top=top.astype(np.int64), random=random.astype(np.int64))
+    random = np.sort(rng.choice(n, size=k, replace=False)).astype(np.int64)
+    if not params.hand_check_points:
+        return Pick(candidates=cands, scores=scores, top=np.argsort(-scores, kind="stable")[:k].astype(np.int64),
+                    random=random)
+    points = surface_points(cands.vertices, cands.faces, params.hand_check_points, rng)
+    clear = ~hand_hits(points, cands.T_tcp, hand_boxes(load_gripper(model.gripper)))
+    # ranked: the clear candidates by score, then (only if fewer than k are clear) the others by score
+    order = np.argsort(-scores, kind="stable")
+    top = np.concatenate([order[clear[order]], order[~clear[order]]])[:k].astype(np.int64)
+    ids = np.flatnonzero(clear)
+    random_clear = np.sort(rng.choice(ids, size=min(k, len(ids)), replace=False)).astype(np.int64)
+    return Pick(candidates=cands, scores=scores, top=top, random=random, clear=clear, random_clear=random_clear)
+
+
+def hand_hits(points: np.ndarray, T_tcp: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """``(n,) bool``: whether any of ``points (p, 3)`` (object frame, m) lies inside any of the open hand's
+    ``boxes (b, 2, 3)`` (lowest and highest corners, TCP frame) at each pose of ``T_tcp (n, 4, 4)``."""
+    out = np.zeros(len(T_tcp), dtype=bool)
+    for i, T in enumerate(np.asarray(T_tcp, dtype=np.float64)):
+        local = (points - T[:3, 3]) @ T[:3, :3]
+        out[i] = any(np.any(np.all((local >= lo) & (local <= hi), axis=1)) for lo, hi in boxes)
+    return out
 
 
 def simulate_pick(result: Pick, gripper: str, params: PickParams, *, jobs: int = 1,
@@ -174,27 +205,32 @@ def simulate_pick(result: Pick, gripper: str, params: PickParams, *, jobs: int =
         ``top_success``, ``random_success`` (fractions held), ``top_firm``, ``random_firm`` (fractions held
         firmly), ``density``, ``friction`` (of the rollouts), ``n_top``, ``n_random``, ``top_outcomes``,
         ``random_outcomes`` (outcome codes, in the groups' order), ``candidates``, ``mesh``, ``scale``, ``gripper``,
-        ``top_scores``, ``random_scores``.
+        ``top_scores``, ``random_scores``; with the hand check also ``clear_candidates``, ``random_clear_success``
+        (held, of ``k`` drawn from the clear candidates), ``random_clear_outcomes``.
     """
     from graspgen.sim.protocols import Outcome
     from graspgen.workflows.evaluate import evaluate_grasps
     from graspgen.workflows.evaluate_settings import EvaluateParams
 
     c = result.candidates
-    both = np.concatenate([result.top, result.random])
+    extra = result.random_clear if result.random_clear is not None else np.zeros(0, np.int64)
+    both = np.concatenate([result.top, result.random, extra])
     table = evaluate_grasps(c.mesh_path, c.scale, c.T_tcp[both], c.width[both], gripper,
                             EvaluateParams(friction=params.friction, density=params.density,
                                            max_extent=params.max_extent),
                             protocol="acronym", jobs=jobs, cache_dir=cache_dir)
     outcome = table.column("outcome").to_numpy().astype(int)
     firm = table.column("firm").to_numpy(zero_copy_only=False).astype(bool)
-    k = len(result.top)
-    top, random = outcome[:k], outcome[k:]
+    k, m = len(result.top), len(result.top) + len(result.random)
+    top, random, clear = outcome[:k], outcome[k:m], outcome[m:]
+    checked = {} if result.clear is None else {
+        "clear_candidates": int(result.clear.sum()), "random_clear_success": float(np.mean(clear == Outcome.SUCCESS))
+        if len(clear) else None, "random_clear_outcomes": clear.tolist()}
     return {
         "top_success": float(np.mean(top == Outcome.SUCCESS)),
         "random_success": float(np.mean(random == Outcome.SUCCESS)),
         "top_firm": float(np.mean(firm[:k])),
-        "random_firm": float(np.mean(firm[k:])),
+        "random_firm": float(np.mean(firm[k:m])),
         "density": params.density,
         "friction": params.friction,
         "n_top": int(k),
@@ -207,4 +243,5 @@ def simulate_pick(result: Pick, gripper: str, params: PickParams, *, jobs: int =
         "mesh": str(c.mesh_path),
         "scale": c.scale,
         "gripper": str(gripper),
+        **checked,
     }
