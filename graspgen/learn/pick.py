@@ -12,7 +12,7 @@ more often than picking at random?
    by score (ties by candidate index) among the candidates whose open hand holds none of ``hand_check_points``
    surface points (:func:`hand_hits`: the others would strike the object at placement), and ``k`` drawn uniformly
    without replacement from all candidates, and ``k`` from the clear ones.
-3. :func:`simulate_pick`: both groups rolled out with :func:`graspgen.workflows.evaluate.evaluate_grasps` (the model's
+3. :func:`simulate_pick`: the groups rolled out with :func:`graspgen.workflows.evaluate.evaluate_grasps` (the model's
    gripper, the ``acronym`` protocol: placed open, close, shake; friction 1.0 as the object-grasps stage uses);
    the success rate of each.
 
@@ -149,7 +149,8 @@ class Pick:
     scores: np.ndarray
     """``(n,) float64`` the model's success probability per candidate."""
     top: np.ndarray
-    """``(k,) int64`` indices of the ``k`` best-scored candidates, best first."""
+    """``(k,) int64`` indices of the ``k`` best-scored candidates, best first (with the hand check: the clear ones
+    first, the others only when fewer than ``k`` are clear)."""
     random: np.ndarray
     """``(k,) int64`` indices of ``k`` candidates drawn uniformly without replacement."""
     clear: np.ndarray | None = None
