@@ -11,18 +11,12 @@ from studies.pick_ranking import TOP, ensemble_score, top_rate  # noqa: E402
 
 
 def test_ensemble_score_matches_the_library_ensemble():
-    from graspgen.learn.model import EvaluatorEnsemble, PointNetEvaluator
-
-    class Fixed(PointNetEvaluator):
-        def __init__(self, logits):
-            super().__init__()
-            self.logits = torch.as_tensor(logits, dtype=torch.float64)
-
-        def forward(self, points, width):
-            return self.logits
+    from graspgen.learn.model import EvaluatorEnsemble
+    from tests.graspgen.learn.test_learn_ensemble import _Fixed
 
     logits = np.random.default_rng(0).normal(0.0, 8.0, size=(5, 40))
-    library = EvaluatorEnsemble([Fixed(row) for row in logits])(torch.zeros(1), torch.zeros(1)).numpy()
+    members = [_Fixed(row, dtype=torch.float64) for row in logits]
+    library = EvaluatorEnsemble(members)(torch.zeros(1), torch.zeros(1)).numpy()
     np.testing.assert_allclose(ensemble_score(logits), library, rtol=1e-9, atol=1e-9)
     # the ensemble's order is the order of the mean probability
     mean_p = (1.0 / (1.0 + np.exp(-logits))).mean(0)

@@ -26,9 +26,9 @@ from tests.graspgen.learn.test_learn_train import SMALL, _boxes  # noqa: E402
 class _Fixed(PointNetEvaluator):
     """A member whose logits are given: forward returns them whatever the input."""
 
-    def __init__(self, logits):
+    def __init__(self, logits, dtype=torch.float32):
         super().__init__()
-        self.logits = torch.as_tensor(logits, dtype=torch.float32)
+        self.logits = torch.as_tensor(logits, dtype=dtype)
 
     def forward(self, points, width):
         return self.logits
