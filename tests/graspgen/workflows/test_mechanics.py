@@ -117,3 +117,35 @@ def test_2f85_knuckles_close_on_the_slip_box(name, tmp_path):
     cos = np.abs(r.contact_normals @ T[:3, 0])
     margin = mu * cos - np.sqrt(1.0 - cos ** 2)  # friction left when the squeeze alone pushes the box out
     assert np.all((margin > 0.0) & (margin < 0.05)), np.degrees(np.arccos(cos))
+
+
+#: Light, thin parts: MuJoCo's contact softness is mass-normalised (graspgen/sim/gripper_model.py), and at the
+#: 4 ms floor of its time constant (two 2 ms steps) a Panda's 70 N squeeze sinks the pads through a few-gram plate:
+#: a 4 mm plate of 0.6-3.8 g ends with the pads 0.07-0.26 mm apart, an 8 mm one of 1.1 g is squeezed out at
+#: closing (it flies 1.8 m: no contact). ACRONYM's 150 kg/m^3 makes knives such parts (0.7 g): on 6 knives outside
+#: ../shared, 4-34 % of the sets' grasps end with no contact at closing, pads closed to 0.03 mm
+#: (docs/fidelity.md, "On meshes outside ../shared"). A known defect, kept visible: strict, so the mark must go
+#: once it is fixed.
+_LIGHT_PLATE = pytest.mark.xfail(strict=True, reason="the pads sink through light thin plates (mass-normalised "
+                                 "contact softness at its time-constant floor)")
+
+
+@pytest.mark.parametrize(("thickness", "density"), [
+    (0.008, 1000.0), (0.016, 150.0),
+    pytest.param(0.004, 1000.0, marks=_LIGHT_PLATE), pytest.param(0.004, 150.0, marks=_LIGHT_PLATE),
+    pytest.param(0.008, 150.0, marks=_LIGHT_PLATE)])
+def test_face_on_grasp_of_a_plate_holds_firm_with_the_pads_outside_it(thickness, density, tmp_path):
+    """A rigid plate squeezed face-on at its centre between parallel pads (mu 1, grip force >> its weight) is in
+    force closure with no moment: it must hold, firm, and the pads must stop on its faces, not meet inside it (the
+    pads' compliance, solimp width 1 mm, allows less than half the plate here)."""
+    from graspgen.sim.protocols import Outcome
+    from graspgen.workflows.evaluate import evaluate_grasps
+
+    mesh = mechanics.box_mesh((thickness, 0.014, 0.067), tmp_path / "plate.obj")
+    grasp = np.eye(4)
+    grasp[:3, :3] = np.column_stack([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # close along x
+    params = dataclasses.replace(EvaluateParams(), density=density, friction=1.0)
+    row = evaluate_grasps(mesh, 1.0, grasp[None], np.array([thickness]), "panda", params, protocol="acronym",
+                          cache_dir=tmp_path).to_pylist()[0]
+    assert row["outcome"] == Outcome.SUCCESS and row["firm"], row
+    assert row["closed_width"] > thickness / 2, row["closed_width"]
