@@ -1,0 +1,243 @@
+"""The issue's own check on ACRONYM meshes outside ``../shared``: do our default sets teach there too?
+
+Two steps around the command-line check (``gen run``, ``gen probe train/eval/pick``; the commands are in
+docs/fidelity.md, "On meshes outside ../shared"):
+
+``prepare`` chooses the files. Its source is AffordanceGrasp's ``data/affordance_grasps`` (github
+turbohiro/AffordanceGrasp, ACRONYM's FleX labels on ShapeNetSem meshes, CC BY-NC 4.0: the source of
+``../shared/learn``). It keeps one file per mesh whose mesh is in neither ``../shared/learn`` nor
+``../shared/calibration``, in a fixed order (sha1 of the mesh id), up to a quota per category, and only files whose
+poses line up with their mesh: the file's ``grasps/transforms_adjust`` (the poses in the re-exported meshes' frame,
+as in ``../shared/learn``) put at least 99 % of FleX's successes' closing points within 2 cm of the surface, the
+criterion ``../shared/learn``'s README states. Nothing about our labels or networks enters the choice. It writes
+the files in ACRONYM's layout (``grasps/transforms`` = the adjusted poses) and an objects manifest (mesh, scale,
+density, friction, category).
+
+``summary`` reads what the commands wrote (``gen probe eval``'s JSON per network, ``gen probe pick``'s per mesh),
+adds the per-object-rate oracle computed from the files' FleX labels, and writes one results file.
+
+``plates`` measures why the knives fail there: a Panda grasp face-on at the centre of a plate, by thickness and
+density, with the gripper's contact impedance and two stiffer ones (:func:`plate_sweep`).
+
+Run: ``python -m studies.unseen prepare --source DIR --out DIR`` then, after the commands,
+``python -m studies.unseen summary --files DIR --eval a A.json --eval c C.json --picks DIR --part NAME``;
+``python -m studies.unseen plates``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import json
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from graspgen.learn.report import roc_auc
+
+HERE = Path(__file__).resolve().parent
+SHARED = HERE.parent.parent / "shared"
+QUOTA = {"Bottle": 6, "Bowl": 6, "Mug": 8, "Knife": 6, "Hat": 2, "Scissors": 2}
+"""Files per category: the categories of ``../shared/learn``, in about its proportions."""
+TCP_DEPTH = 0.1034
+"""Distance (m) from the Panda's grasp frame to the closing point along its approach axis (ACRONYM's frame)."""
+ALIGNED = 0.99
+"""Share of FleX's successes whose closing point lies within :data:`NEAR` of the surface for a file to count as
+lined up with its mesh (``../shared/learn``'s README)."""
+NEAR = 0.02
+"""Metres."""
+
+
+def seen_meshes(shared: Path) -> set[str]:
+    """Mesh ids (``Category_<id>_<scale>.h5``'s id, and the calibration meshes' file names) under ``shared``."""
+    ids = {p.stem.split("_")[-2] for p in shared.rglob("*.h5") if p.stem.count("_") >= 2}
+    return ids | {p.stem for p in shared.rglob("*.obj")}
+
+
+def alignment(T: np.ndarray, success: np.ndarray, mesh) -> float:
+    """Share of the successful poses' closing points within :data:`NEAR` of ``mesh``'s surface.
+
+    ``T``: ``(n, 4, 4)`` grasp poses; ``success``: ``(n,) bool``; ``mesh``: a scaled ``trimesh.Trimesh``.
+    0.0 when no pose succeeds (nothing to line up)."""
+    import trimesh
+
+    if not success.any():
+        return 0.0
+    points = (T[success] @ np.array([0.0, 0.0, TCP_DEPTH, 1.0]))[:, :3]
+    return float(np.mean(np.abs(trimesh.proximity.signed_distance(mesh, points)) < NEAR))
+
+
+def _sha1(text: str) -> str:
+    return hashlib.sha1(text.encode()).hexdigest()
+
+
+def prepare(source: Path, out: Path, shared: Path = SHARED, quota: dict[str, int] = QUOTA) -> list[dict]:
+    """Choose, convert and list the files (module docstring); returns the manifest's rows."""
+    import h5py
+    import trimesh
+
+    seen = seen_meshes(shared)
+    by_mesh: dict[tuple[str, str], list[Path]] = defaultdict(list)
+    for f in sorted((source / "grasps").glob("*.h5")):
+        category, mesh_id, _ = f.stem.split("_", 2)
+        if category in quota and mesh_id not in seen:
+            by_mesh[(category, mesh_id)].append(f)
+    rows = []
+    for category, wanted in quota.items():
+        meshes = sorted((k for k in by_mesh if k[0] == category), key=lambda k: _sha1(k[1]))
+        kept = 0
+        for key in meshes:
+            if kept == wanted:
+                break
+            f = sorted(by_mesh[key], key=lambda p: _sha1(p.name))[0]
+            with h5py.File(f, "r") as h:
+                T = h["grasps/transforms_adjust"][()]
+                success = h["grasps/qualities/flex/object_in_gripper"][()] > 0
+                mesh_file, scale = h["object/file"][()].decode(), float(h["object/scale"][()])
+                physics = {k: float(h[f"object/{k}"][()]) for k in ("density", "friction")}
+            mesh = trimesh.load(source / mesh_file, force="mesh")
+            mesh.apply_scale(scale)
+            share = alignment(T, success, mesh)
+            print(f"  {f.stem[:48]:<48} lined up {share:.3f}", flush=True)
+            if share < ALIGNED:
+                continue
+            kept += 1
+            rows.append({"path": str((out / mesh_file).resolve()), "name": f.stem, "scale": scale, **physics,
+                         "category": category})
+            _write_acronym(f, out / f.name, T)
+            (out / mesh_file).parent.mkdir(parents=True, exist_ok=True)
+            (out / mesh_file).write_bytes((source / mesh_file).read_bytes())
+    with open(out / "objects.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=["path", "name", "scale", "density", "friction", "category"])
+        writer.writeheader()
+        writer.writerows(rows)
+    return rows
+
+
+def _write_acronym(src: Path, dst: Path, T: np.ndarray) -> None:
+    """``src`` in ACRONYM's layout with ``grasps/transforms`` = ``T``, the FleX labels, object and gripper."""
+    import h5py
+
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    with h5py.File(src, "r") as h, h5py.File(dst, "w") as o:
+        for group in ("object", "gripper"):
+            h.copy(group, o)
+        h.copy("grasps/qualities", o.require_group("grasps"))
+        o["grasps/transforms"] = T
+
+
+def object_rate_auc(files: list[Path]) -> float | None:
+    """Pooled ROC-AUC of FleX's labels scored by each file's own success rate (the per-object-rate oracle)."""
+    import h5py
+
+    labels, scores = [], []
+    for f in files:
+        with h5py.File(f, "r") as h:
+            y = h["grasps/qualities/flex/object_in_gripper"][()] > 0
+        labels.append(y)
+        scores.append(np.full(len(y), y.mean()))
+    return roc_auc(np.concatenate(labels), np.concatenate(scores))
+
+
+def summary(files: Path, evals: dict[str, Path], picks: Path | None) -> dict:
+    """The check's results: ``files``, the ACRONYM files evaluated; ``evals``, network name -> ``gen probe eval``'s
+    JSON; ``picks``, the folder of ``gen probe pick``'s JSONs (module docstring)."""
+    h5 = sorted(files.glob("*.h5"))
+    result: dict = {"files": [f.stem for f in h5]}
+    for net, path in evals.items():
+        report = json.loads(path.read_text())
+        result[net] = {k: report.get(k) for k in ("n", "auc", "ap", "mean_object_auc", "base_rate")}
+    result["object_rate_auc"] = object_rate_auc(h5)
+    rows = [json.loads(p.read_text()) | {"name": p.stem} for p in sorted(picks.glob("*.json"))] if picks else []
+    if rows:
+        keys = ("top_success", "top_firm", "random_success", "random_firm", "random_clear_success")
+        result["pick"] = {k: float(np.mean([r[k] for r in rows if r.get(k) is not None])) for k in keys}
+        result["pick"]["files"] = len(rows)
+        result["pick"]["files_at_0.9"] = int(sum(r["top_success"] >= 0.9 - 1e-9 for r in rows))
+        result["pick_objects"] = [{k: r.get(k) for k in ("name", "top_success", "top_firm", "random_success",
+                                                          "random_clear_success", "clear_candidates",
+                                                          "top_outcomes")} for r in rows]
+    return result
+
+
+PLATE_FACE = (0.014, 0.067)
+"""Width and length (m) of the plates of :func:`plate_sweep`: a knife blade's."""
+
+
+def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
+                densities=(150.0, 300.0, 1000.0, 3000.0, 10000.0), solimp=None) -> list[dict]:
+    """A Panda grasp face-on at the centre of a plate (faces :data:`PLATE_FACE`), ``acronym`` protocol, mu 1: its
+    outcome, firm label and the pads' gap after closing, per thickness (m) and density (kg/m^3). ``solimp``: the
+    protocol's ``contact_solimp`` (None: the gripper model's). The meshes are written to ``folder``."""
+    import dataclasses
+
+    import trimesh
+
+    from graspgen.workflows.evaluate import evaluate_grasps
+    from graspgen.workflows.evaluate_settings import EvaluateParams
+
+    grasp = np.eye(4)
+    grasp[:3, :3] = np.column_stack([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # close along x
+    rows = []
+    for thickness in thicknesses:
+        plate = trimesh.creation.box(extents=(thickness, *PLATE_FACE))
+        mesh = folder / f"plate_{thickness * 1000:g}mm.obj"
+        plate.export(mesh)
+        for density in densities:
+            params = EvaluateParams()
+            lift = dataclasses.replace(params.lift, acronym=dataclasses.replace(params.lift.acronym,
+                                                                                contact_solimp=solimp))
+            params = dataclasses.replace(params, density=density, friction=1.0, lift=lift)
+            row = evaluate_grasps(mesh, 1.0, grasp[None], np.array([thickness]), "panda", params,
+                                  protocol="acronym").to_pylist()[0]
+            rows.append({"thickness_mm": thickness * 1000, "density": density,
+                         "mass_g": float(plate.volume * density * 1000), "outcome": int(row["outcome"]),
+                         "firm": bool(row["firm"]), "closed_mm": float(row["closed_width"]) * 1000,
+                         "motion_closing_m": float(row["motion_closing_linear"]), "solimp": solimp})
+            print(f"  {thickness * 1000:g} mm, {density:g} kg/m^3 ({rows[-1]['mass_g']:.2f} g): outcome "
+                  f"{rows[-1]['outcome']}, firm {rows[-1]['firm']}, pads {rows[-1]['closed_mm']:.3f} mm apart",
+                  flush=True)
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("prepare", help="choose and convert the files, write objects.csv")
+    p.add_argument("--source", type=Path, required=True, help="AffordanceGrasp's data/affordance_grasps")
+    p.add_argument("--out", type=Path, required=True, help="folder for the files (OUT/acronym)")
+    p.add_argument("--shared", type=Path, default=SHARED, help="meshes here are left out (default ../shared)")
+    s = sub.add_parser("summary", help="collect the commands' results")
+    s.add_argument("--files", type=Path, required=True, help="the ACRONYM files the networks were evaluated on")
+    s.add_argument("--eval", nargs=2, action="append", metavar=("NAME", "JSON"), default=[],
+                   help="a network's name and its gen probe eval JSON (repeatable)")
+    s.add_argument("--picks", type=Path, default=None, help="folder of gen probe pick's JSONs")
+    s.add_argument("--part", default="check", help="the results' key in --out (other keys are kept)")
+    s.add_argument("--out", type=Path, default=HERE / "results_unseen.json")
+    pl = sub.add_parser("plates", help="the plate sweep (pads through light thin parts), default and two impedances")
+    pl.add_argument("--out", type=Path, default=HERE / "results_unseen.json")
+    args = ap.parse_args()
+    if args.command == "plates":
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = [r for solimp in (None, (0.95, 0.9999, 0.001, 0.5, 2.0), (0.9999, 0.9999, 0.001, 0.5, 2.0))
+                    for r in plate_sweep(Path(tmp), solimp=solimp)]
+        parts = json.loads(args.out.read_text()) if args.out.exists() else {}
+        args.out.write_text(json.dumps(parts | {"plates": rows}, indent=1))
+        print(f"wrote {args.out}")
+    elif args.command == "prepare":
+        rows = prepare(args.source, args.out, args.shared)
+        print(f"{len(rows)} files -> {args.out / 'objects.csv'}")
+    else:
+        result = summary(args.files, {name: Path(path) for name, path in args.eval}, args.picks)
+        parts = json.loads(args.out.read_text()) if args.out.exists() else {}
+        args.out.write_text(json.dumps(parts | {args.part: result}, indent=1))
+        print(json.dumps({k: v for k, v in result.items() if k not in ("files", "pick_objects")}, indent=1))
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
