@@ -17,7 +17,7 @@ density, friction, category).
 adds the per-object-rate oracle computed from the files' FleX labels, and writes one results file.
 
 ``plates`` measures why the knives fail there: a Panda grasp face-on at the centre of a plate, by thickness and
-density, with the gripper's contact impedance and two stiffer ones (:func:`plate_sweep`).
+density, with the gripper's contact as it is and as :data:`PLATE_SETTINGS` changes it (:func:`plate_sweep`).
 
 Run: ``python -m studies.unseen prepare --source DIR --out DIR`` then, after the commands,
 ``python -m studies.unseen summary --files DIR --eval a A.json --eval c C.json --picks DIR --part NAME``;
@@ -166,11 +166,19 @@ PLATE_FACE = (0.014, 0.067)
 """Width and length (m) of the plates of :func:`plate_sweep`: a knife blade's."""
 
 
+PLATE_SETTINGS = ({}, {"solimp": (0.95, 0.9999, 0.001, 0.5, 2.0)}, {"solimp": (0.9999, 0.9999, 0.001, 0.5, 2.0)},
+                  {"timestep": 0.0005, "solref": (0.001, 1.0)}, {"timestep": 0.00025, "solref": (0.0005, 1.0)})
+"""The gripper's contact as it is, two stiffer impedances, and two shorter time constants with the timesteps they
+need (two steps each)."""
+
+
 def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
-                densities=(150.0, 300.0, 1000.0, 3000.0, 10000.0), solimp=None) -> list[dict]:
+                densities=(150.0, 300.0, 1000.0, 3000.0, 10000.0), solimp=None, solref=None,
+                timestep: float | None = None) -> list[dict]:
     """A Panda grasp face-on at the centre of a plate (faces :data:`PLATE_FACE`), ``acronym`` protocol, mu 1: its
-    outcome, firm label and the pads' gap after closing, per thickness (m) and density (kg/m^3). ``solimp``: the
-    protocol's ``contact_solimp`` (None: the gripper model's). The meshes are written to ``folder``."""
+    outcome, firm label and the pads' gap after closing, per thickness (m) and density (kg/m^3). ``solimp``,
+    ``solref``: the protocol's ``contact_solimp`` / ``contact_solref`` (None: the gripper model's); ``timestep`` (s):
+    None keeps the protocol's. The meshes are written to ``folder``."""
     import dataclasses
 
     import trimesh
@@ -187,15 +195,17 @@ def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
         plate.export(mesh)
         for density in densities:
             params = EvaluateParams()
-            lift = dataclasses.replace(params.lift, acronym=dataclasses.replace(params.lift.acronym,
-                                                                                contact_solimp=solimp))
+            lift = dataclasses.replace(params.lift, timestep=timestep or params.lift.timestep,
+                                       acronym=dataclasses.replace(params.lift.acronym, contact_solimp=solimp,
+                                                                   contact_solref=solref))
             params = dataclasses.replace(params, density=density, friction=1.0, lift=lift)
             row = evaluate_grasps(mesh, 1.0, grasp[None], np.array([thickness]), "panda", params,
                                   protocol="acronym").to_pylist()[0]
             rows.append({"thickness_mm": thickness * 1000, "density": density,
                          "mass_g": float(plate.volume * density * 1000), "outcome": int(row["outcome"]),
                          "firm": bool(row["firm"]), "closed_mm": float(row["closed_width"]) * 1000,
-                         "motion_closing_m": float(row["motion_closing_linear"]), "solimp": solimp})
+                         "motion_closing_m": float(row["motion_closing_linear"]), "solimp": solimp,
+                         "solref": solref, "timestep": timestep})
             print(f"  {thickness * 1000:g} mm, {density:g} kg/m^3 ({rows[-1]['mass_g']:.2f} g): outcome "
                   f"{rows[-1]['outcome']}, firm {rows[-1]['firm']}, pads {rows[-1]['closed_mm']:.3f} mm apart",
                   flush=True)
@@ -223,8 +233,7 @@ def main() -> None:
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
-            rows = [r for solimp in (None, (0.95, 0.9999, 0.001, 0.5, 2.0), (0.9999, 0.9999, 0.001, 0.5, 2.0))
-                    for r in plate_sweep(Path(tmp), solimp=solimp)]
+            rows = [r for setting in PLATE_SETTINGS for r in plate_sweep(Path(tmp), **setting)]
         parts = json.loads(args.out.read_text()) if args.out.exists() else {}
         args.out.write_text(json.dumps(parts | {"plates": rows}, indent=1))
         print(f"wrote {args.out}")
