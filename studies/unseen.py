@@ -78,9 +78,13 @@ def prepare(source: Path, out: Path, shared: Path = SHARED, quota: dict[str, int
     import h5py
     import trimesh
 
+    files = sorted((source / "grasps").glob("*.h5"))
+    if not files:
+        raise SystemExit(f"--source {source}: no ACRONYM files in {source / 'grasps'} (give AffordanceGrasp's "
+                         "data/affordance_grasps)")
     seen = seen_meshes(shared)
     by_mesh: dict[tuple[str, str], list[Path]] = defaultdict(list)
-    for f in sorted((source / "grasps").glob("*.h5")):
+    for f in files:
         category, mesh_id, _ = f.stem.split("_", 2)
         if category in quota and mesh_id not in seen:
             by_mesh[(category, mesh_id)].append(f)
@@ -241,6 +245,10 @@ def main() -> None:
         rows = prepare(args.source, args.out, args.shared)
         print(f"{len(rows)} files -> {args.out / 'objects.csv'}")
     else:
+        missing = [str(p) for p in (args.files, *(Path(path) for _, path in args.eval), args.picks)
+                   if p is not None and not Path(p).exists()]
+        if missing:
+            raise SystemExit(f"not found: {', '.join(missing)}")
         result = summary(args.files, {name: Path(path) for name, path in args.eval}, args.picks)
         parts = json.loads(args.out.read_text()) if args.out.exists() else {}
         args.out.write_text(json.dumps(parts | {args.part: result}, indent=1))
