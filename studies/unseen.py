@@ -17,11 +17,13 @@ density, friction, category).
 adds the per-object-rate oracle computed from the files' FleX labels, and writes one results file.
 
 ``plates`` measures why the knives fail there: a Panda grasp face-on at the centre of a plate, by thickness and
-density, with the gripper's contact as it is and as :data:`PLATE_SETTINGS` changes it (:func:`plate_sweep`).
+density, with the gripper's contact as it is and as :data:`PLATE_SETTINGS` changes it (:func:`plate_sweep`);
+``resim`` rolls one object's set grasps out again as they are and with a 1 ms time constant (:func:`resimulate`).
 
 Run: ``python -m studies.unseen prepare --source DIR --out DIR`` then, after the commands,
 ``python -m studies.unseen summary --files DIR --eval a A.json --eval c C.json --picks DIR --part NAME``;
-``python -m studies.unseen plates``.
+``python -m studies.unseen plates``; ``python -m studies.unseen resim --dataset U/out/dataset --object NAME --mesh
+MESH --scale SCALE``.
 """
 
 from __future__ import annotations
@@ -216,6 +218,41 @@ def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
     return rows
 
 
+def resimulate(dataset: Path, name: str, mesh: Path, scale: float, n: int = 200, seed: int = 0) -> list[dict]:
+    """``n`` of object ``name``'s set grasps (collisions left out, drawn with ``seed``) from a published dataset's
+    ``object_grasps.parquet``, rolled out again with the gripper's contact as it is and with the shortest time
+    constant of :data:`PLATE_SETTINGS`: the outcome counts (codes 0-5), held and firm shares, seconds."""
+    import dataclasses
+    import time
+
+    import pyarrow.parquet as pq
+
+    from graspgen.workflows.evaluate import evaluate_grasps
+    from graspgen.workflows.evaluate_settings import EvaluateParams
+
+    table = pq.read_table(dataset / "object_grasps.parquet", filters=[("object_name", "=", name)],
+                          columns=["pose_object", "width", "outcome", "protocol"]).to_pandas()
+    table = table[table.outcome != 1]
+    pick = np.random.default_rng(seed).choice(len(table), min(n, len(table)), replace=False)
+    poses = np.stack([np.asarray(p, np.float64).reshape(4, 4) for p in table.pose_object.iloc[pick]])
+    widths = table.width.to_numpy()[pick]
+    rows = []
+    for setting in ({}, PLATE_SETTINGS[3]):
+        params = EvaluateParams()
+        lift = dataclasses.replace(params.lift, timestep=setting.get("timestep", params.lift.timestep),
+                                   acronym=dataclasses.replace(params.lift.acronym,
+                                                               contact_solref=setting.get("solref")))
+        params = dataclasses.replace(params, density=150.0, friction=1.0, lift=lift)
+        start = time.perf_counter()
+        out = evaluate_grasps(mesh, scale, poses, widths, "panda", params, protocol="acronym").to_pandas()
+        rows.append({"setting": setting, "outcomes": np.bincount(out.outcome, minlength=6).tolist(),
+                     "held": float((out.outcome == 5).mean()), "firm": float(out.firm.mean()),
+                     "seconds": time.perf_counter() - start})
+        print(f"  {setting or 'as it is'}: outcomes {rows[-1]['outcomes']}, held {rows[-1]['held']:.2f}, firm "
+              f"{rows[-1]['firm']:.2f}, {rows[-1]['seconds']:.0f} s", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = ap.add_subparsers(dest="command", required=True)
@@ -232,6 +269,13 @@ def main() -> None:
     s.add_argument("--out", type=Path, default=HERE / "results_unseen.json")
     pl = sub.add_parser("plates", help="the plate sweep (pads through light thin parts), default and two impedances")
     pl.add_argument("--out", type=Path, default=HERE / "results_unseen.json")
+    r = sub.add_parser("resim", help="one object's set grasps again, as they are and with a 1 ms time constant")
+    r.add_argument("--dataset", type=Path, required=True, help="a published dataset folder (object_grasps.parquet)")
+    r.add_argument("--object", required=True, help="the object's name in the sets")
+    r.add_argument("--mesh", type=Path, required=True)
+    r.add_argument("--scale", type=float, required=True, help="metres per mesh unit")
+    r.add_argument("-n", type=int, default=200)
+    r.add_argument("--out", type=Path, default=HERE / "results_unseen.json")
     args = ap.parse_args()
     if args.command == "plates":
         import tempfile
@@ -240,6 +284,11 @@ def main() -> None:
             rows = [r for setting in PLATE_SETTINGS for r in plate_sweep(Path(tmp), **setting)]
         parts = json.loads(args.out.read_text()) if args.out.exists() else {}
         args.out.write_text(json.dumps(parts | {"plates": rows}, indent=1))
+        print(f"wrote {args.out}")
+    elif args.command == "resim":
+        rows = resimulate(args.dataset, args.object, args.mesh, args.scale, args.n)
+        parts = json.loads(args.out.read_text()) if args.out.exists() else {}
+        args.out.write_text(json.dumps(parts | {f"resim_{args.object}": rows}, indent=1))
         print(f"wrote {args.out}")
     elif args.command == "prepare":
         rows = prepare(args.source, args.out, args.shared)
