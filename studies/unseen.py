@@ -178,6 +178,20 @@ PLATE_SETTINGS = ({}, {"solimp": (0.95, 0.9999, 0.001, 0.5, 2.0)}, {"solimp": (0
 need (two steps each)."""
 
 
+def _contact_params(density: float, solimp=None, solref=None, timestep: float | None = None):
+    """Default :class:`EvaluateParams` at ``density`` (kg/m^3) and friction 1, with the ``acronym`` protocol's
+    gripper contact changed as given (None keeps the model's; ``timestep`` in s)."""
+    import dataclasses
+
+    from graspgen.workflows.evaluate_settings import EvaluateParams
+
+    params = EvaluateParams()
+    lift = dataclasses.replace(params.lift, timestep=timestep or params.lift.timestep,
+                               acronym=dataclasses.replace(params.lift.acronym, contact_solimp=solimp,
+                                                           contact_solref=solref))
+    return dataclasses.replace(params, density=float(density), friction=1.0, lift=lift)
+
+
 def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
                 densities=(150.0, 300.0, 1000.0, 3000.0, 10000.0), solimp=None, solref=None,
                 timestep: float | None = None) -> list[dict]:
@@ -185,12 +199,9 @@ def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
     outcome, firm label and the pads' gap after closing, per thickness (m) and density (kg/m^3). ``solimp``,
     ``solref``: the protocol's ``contact_solimp`` / ``contact_solref`` (None: the gripper model's); ``timestep`` (s):
     None keeps the protocol's. The meshes are written to ``folder``."""
-    import dataclasses
-
     import trimesh
 
     from graspgen.workflows.evaluate import evaluate_grasps
-    from graspgen.workflows.evaluate_settings import EvaluateParams
 
     grasp = np.eye(4)
     grasp[:3, :3] = np.column_stack([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # close along x
@@ -200,11 +211,7 @@ def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
         mesh = folder / f"plate_{thickness * 1000:g}mm.obj"
         plate.export(mesh)
         for density in densities:
-            params = EvaluateParams()
-            lift = dataclasses.replace(params.lift, timestep=timestep or params.lift.timestep,
-                                       acronym=dataclasses.replace(params.lift.acronym, contact_solimp=solimp,
-                                                                   contact_solref=solref))
-            params = dataclasses.replace(params, density=density, friction=1.0, lift=lift)
+            params = _contact_params(density, solimp, solref, timestep)
             row = evaluate_grasps(mesh, 1.0, grasp[None], np.array([thickness]), "panda", params,
                                   protocol="acronym").to_pylist()[0]
             rows.append({"thickness_mm": thickness * 1000, "density": density,
@@ -222,13 +229,11 @@ def resimulate(dataset: Path, name: str, mesh: Path, scale: float, n: int = 200,
     """``n`` of object ``name``'s set grasps (collisions left out, drawn with ``seed``) from a published dataset's
     ``object_grasps.parquet``, rolled out again with the gripper's contact as it is and with the shortest time
     constant of :data:`PLATE_SETTINGS`: the outcome counts (codes 0-5), held and firm shares, seconds."""
-    import dataclasses
     import time
 
     import pyarrow.parquet as pq
 
     from graspgen.workflows.evaluate import evaluate_grasps
-    from graspgen.workflows.evaluate_settings import EvaluateParams
 
     table = pq.read_table(dataset / "object_grasps.parquet", filters=[("object_name", "=", name)],
                           columns=["pose_object", "width", "outcome", "protocol"]).to_pandas()
@@ -238,11 +243,7 @@ def resimulate(dataset: Path, name: str, mesh: Path, scale: float, n: int = 200,
     widths = table.width.to_numpy()[pick]
     rows = []
     for setting in ({}, PLATE_SETTINGS[3]):
-        params = EvaluateParams()
-        lift = dataclasses.replace(params.lift, timestep=setting.get("timestep", params.lift.timestep),
-                                   acronym=dataclasses.replace(params.lift.acronym,
-                                                               contact_solref=setting.get("solref")))
-        params = dataclasses.replace(params, density=150.0, friction=1.0, lift=lift)
+        params = _contact_params(150.0, **setting)
         start = time.perf_counter()
         out = evaluate_grasps(mesh, scale, poses, widths, "panda", params, protocol="acronym").to_pandas()
         rows.append({"setting": setting, "outcomes": np.bincount(out.outcome, minlength=6).tolist(),
