@@ -89,6 +89,9 @@ class PhysicsParams:
     """``implicitfast``, ``implicit``, ``euler`` or ``rk4``."""
     pad_torsion: str = _LIFT.pad_torsion
     """The pads' torsional friction arm: ``face`` (the whole pad face) or ``patch`` (the part the object covers)."""
+    pad_sink: str = _LIFT.pad_sink
+    """``bounded``: a light object's scene gets a shorter gripper contact time constant (and timestep) so the pads
+    sink no deeper than their 1 mm compliance into it; ``model``: the gripper model's contact whatever the mass."""
     check_interval: int = _LIFT.check_interval
     """Steps between two checks of the outcome rules."""
     close_speed_tol: float = _LIFT.close_speed_tol

@@ -18,7 +18,8 @@ adds the per-object-rate oracle computed from the files' FleX labels, and writes
 
 ``plates`` measures why the knives fail there: a Panda grasp face-on at the centre of a plate, by thickness and
 density, with the gripper's contact as it is and as :data:`PLATE_SETTINGS` changes it (:func:`plate_sweep`);
-``resim`` rolls one object's set grasps out again as they are and with a 1 ms time constant (:func:`resimulate`).
+``resim`` rolls one object's set grasps out again with the model's contact, a 1 ms time constant and the default
+bounded sink (:func:`resimulate`).
 
 Run: ``python -m studies.unseen prepare --source DIR --out DIR`` then, after the commands,
 ``python -m studies.unseen summary --files DIR --eval a A.json --eval c C.json --picks DIR --part NAME``;
@@ -172,21 +173,26 @@ PLATE_FACE = (0.014, 0.067)
 """Width and length (m) of the plates of :func:`plate_sweep`: a knife blade's."""
 
 
-PLATE_SETTINGS = ({}, {"solimp": (0.95, 0.9999, 0.001, 0.5, 2.0)}, {"solimp": (0.9999, 0.9999, 0.001, 0.5, 2.0)},
-                  {"timestep": 0.0005, "solref": (0.001, 1.0)}, {"timestep": 0.00025, "solref": (0.0005, 1.0)})
-"""The gripper's contact as it is, two stiffer impedances, and two shorter time constants with the timesteps they
-need (two steps each)."""
+PLATE_SETTINGS = ({"pad_sink": "model"}, {"pad_sink": "model", "solimp": (0.95, 0.9999, 0.001, 0.5, 2.0)},
+                  {"pad_sink": "model", "solimp": (0.9999, 0.9999, 0.001, 0.5, 2.0)},
+                  {"pad_sink": "model", "timestep": 0.0005, "solref": (0.001, 1.0)},
+                  {"pad_sink": "model", "timestep": 0.00025, "solref": (0.0005, 1.0)}, {})
+"""The gripper model's contact (``pad_sink="model"``), two stiffer impedances, two shorter time constants with the
+timesteps they need (two steps each), and the default, the pads' sink bounded per object
+(:mod:`graspgen.sim.pad_sink`)."""
 
 
-def _contact_params(density: float, solimp=None, solref=None, timestep: float | None = None):
+def _contact_params(density: float, solimp=None, solref=None, timestep: float | None = None,
+                    pad_sink: str = "bounded"):
     """Default :class:`EvaluateParams` at ``density`` (kg/m^3) and friction 1, with the ``acronym`` protocol's
-    gripper contact changed as given (None keeps the model's; ``timestep`` in s)."""
+    gripper contact changed as given (None keeps the model's; ``timestep`` in s; ``pad_sink``:
+    ``LiftParams.pad_sink``)."""
     import dataclasses
 
     from graspgen.workflows.evaluate_settings import EvaluateParams
 
     params = EvaluateParams()
-    lift = dataclasses.replace(params.lift, timestep=timestep or params.lift.timestep,
+    lift = dataclasses.replace(params.lift, timestep=timestep or params.lift.timestep, pad_sink=pad_sink,
                                acronym=dataclasses.replace(params.lift.acronym, contact_solimp=solimp,
                                                            contact_solref=solref))
     return dataclasses.replace(params, density=float(density), friction=1.0, lift=lift)
@@ -194,11 +200,11 @@ def _contact_params(density: float, solimp=None, solref=None, timestep: float | 
 
 def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
                 densities=(150.0, 300.0, 1000.0, 3000.0, 10000.0), solimp=None, solref=None,
-                timestep: float | None = None) -> list[dict]:
+                timestep: float | None = None, pad_sink: str = "bounded") -> list[dict]:
     """A Panda grasp face-on at the centre of a plate (faces :data:`PLATE_FACE`), ``acronym`` protocol, mu 1: its
     outcome, firm label and the pads' gap after closing, per thickness (m) and density (kg/m^3). ``solimp``,
     ``solref``: the protocol's ``contact_solimp`` / ``contact_solref`` (None: the gripper model's); ``timestep`` (s):
-    None keeps the protocol's. The meshes are written to ``folder``."""
+    None keeps the protocol's; ``pad_sink``: ``LiftParams.pad_sink``. The meshes are written to ``folder``."""
     import trimesh
 
     from graspgen.workflows.evaluate import evaluate_grasps
@@ -211,14 +217,14 @@ def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
         mesh = folder / f"plate_{thickness * 1000:g}mm.obj"
         plate.export(mesh)
         for density in densities:
-            params = _contact_params(density, solimp, solref, timestep)
+            params = _contact_params(density, solimp, solref, timestep, pad_sink)
             row = evaluate_grasps(mesh, 1.0, grasp[None], np.array([thickness]), "panda", params,
                                   protocol="acronym").to_pylist()[0]
             rows.append({"thickness_mm": thickness * 1000, "density": density,
                          "mass_g": float(plate.volume * density * 1000), "outcome": int(row["outcome"]),
                          "firm": bool(row["firm"]), "closed_mm": float(row["closed_width"]) * 1000,
                          "motion_closing_m": float(row["motion_closing_linear"]), "solimp": solimp,
-                         "solref": solref, "timestep": timestep})
+                         "solref": solref, "timestep": timestep, "pad_sink": pad_sink})
             print(f"  {thickness * 1000:g} mm, {density:g} kg/m^3 ({rows[-1]['mass_g']:.2f} g): outcome "
                   f"{rows[-1]['outcome']}, firm {rows[-1]['firm']}, pads {rows[-1]['closed_mm']:.3f} mm apart",
                   flush=True)
@@ -227,8 +233,9 @@ def plate_sweep(folder: Path, thicknesses=(0.002, 0.004, 0.008, 0.016),
 
 def resimulate(dataset: Path, name: str, mesh: Path, scale: float, n: int = 200, seed: int = 0) -> list[dict]:
     """``n`` of object ``name``'s set grasps (collisions left out, drawn with ``seed``) from a published dataset's
-    ``object_grasps.parquet``, rolled out again with the gripper's contact as it is and with the shortest time
-    constant of :data:`PLATE_SETTINGS`: the outcome counts (codes 0-5), held and firm shares, seconds."""
+    ``object_grasps.parquet``, rolled out again with the gripper model's contact, with a 1 ms time constant at
+    0.5 ms steps, and with the default bounded sink (:data:`PLATE_SETTINGS`): the outcome counts (codes 0-5), held
+    and firm shares, seconds."""
     import time
 
     import pyarrow.parquet as pq
@@ -242,14 +249,14 @@ def resimulate(dataset: Path, name: str, mesh: Path, scale: float, n: int = 200,
     poses = np.stack([np.asarray(p, np.float64).reshape(4, 4) for p in table.pose_object.iloc[pick]])
     widths = table.width.to_numpy()[pick]
     rows = []
-    for setting in ({}, PLATE_SETTINGS[3]):
+    for setting in (PLATE_SETTINGS[0], PLATE_SETTINGS[3], {}):
         params = _contact_params(150.0, **setting)
         start = time.perf_counter()
         out = evaluate_grasps(mesh, scale, poses, widths, "panda", params, protocol="acronym").to_pandas()
         rows.append({"setting": setting, "outcomes": np.bincount(out.outcome, minlength=6).tolist(),
                      "held": float((out.outcome == 5).mean()), "firm": float(out.firm.mean()),
                      "seconds": time.perf_counter() - start})
-        print(f"  {setting or 'as it is'}: outcomes {rows[-1]['outcomes']}, held {rows[-1]['held']:.2f}, firm "
+        print(f"  {setting or 'bounded (default)'}: outcomes {rows[-1]['outcomes']}, held {rows[-1]['held']:.2f}, firm "
               f"{rows[-1]['firm']:.2f}, {rows[-1]['seconds']:.0f} s", flush=True)
     return rows
 
@@ -268,9 +275,9 @@ def main() -> None:
     s.add_argument("--picks", type=Path, default=None, help="folder of gen probe pick's JSONs")
     s.add_argument("--part", default="check", help="the results' key in --out (other keys are kept)")
     s.add_argument("--out", type=Path, default=HERE / "results_unseen.json")
-    pl = sub.add_parser("plates", help="the plate sweep (pads through light thin parts), default and two impedances")
+    pl = sub.add_parser("plates", help="the plate sweep (pads through light thin parts), each PLATE_SETTINGS contact")
     pl.add_argument("--out", type=Path, default=HERE / "results_unseen.json")
-    r = sub.add_parser("resim", help="one object's set grasps again, as they are and with a 1 ms time constant")
+    r = sub.add_parser("resim", help="one object's set grasps again: the model's contact, 1 ms, and bounded")
     r.add_argument("--dataset", type=Path, required=True, help="a published dataset folder (object_grasps.parquet)")
     r.add_argument("--object", required=True, help="the object's name in the sets")
     r.add_argument("--mesh", type=Path, required=True)

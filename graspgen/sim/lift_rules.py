@@ -132,10 +132,10 @@ def live_code(d: mujoco.MjData, geom_is_gripper: np.ndarray, roles: np.ndarray, 
     return code
 
 
-def closing_tolerance(params: LiftParams, dt: float) -> float:
+def closing_tolerance(params: LiftParams, interval: float) -> float:
     """Width change (m) per check interval below which the closing jaws count as stopped (``close_speed_tol``
-    averaged over ``check_interval`` steps of ``dt`` s)."""
-    return check_number("close_speed_tol", params.close_speed_tol, low=0.0) * params.check_interval * dt
+    averaged over a check interval of ``interval`` s)."""
+    return check_number("close_speed_tol", params.close_speed_tol, low=0.0) * interval
 
 
 def rollout_result(params: LiftParams, code, phase: str, steps: int, dt: float, closed_width: float,

@@ -22,6 +22,7 @@ from graspgen.sim.gripper_model import GRIPPER_GEOM_GROUP
 from graspgen.sim.lift_model import StaticCheck, apply_contact_overrides, index_scene, set_grip
 from graspgen.sim.lift_rules import Drift, closing_tolerance, jaw_contacts, live_code, rollout_result
 from graspgen.sim.pad_patch import PatchTorsion
+from graspgen.sim.pad_sink import BoundedContact, bounded_contact
 from graspgen.sim.prefilter import TARGET_TOUCH_DEPTH, touch_allowance
 from graspgen.sim.protocol_phases import protocol_of
 from graspgen.sim.protocols import LiftParams, RolloutResult
@@ -75,6 +76,12 @@ class LiftState:
         overrides = protocol_of(params).contact_overrides(params)
         if overrides is not None:
             apply_contact_overrides(m, overrides, ix, prefix)
+        self.contact = self._bound_pad_sink(m, params, ix)
+        """The gripper's contact time constant and timestep division for this scene's objects
+        (:class:`graspgen.sim.pad_sink.BoundedContact`; ``LiftParams.pad_sink``)."""
+        self.check_interval = params.check_interval * self.contact.substeps
+        """Steps between two checks of the rules: ``params.check_interval`` at the base timestep, so a scene with a
+        divided timestep checks at the same simulated times."""
         explicit = overrides is not None and overrides.torsional_friction is not None
         self.pad_patch = None if params.pad_torsion == "face" or explicit else PatchTorsion(
             m, prefix, ~ix.geom_is_gripper & ~ix.geom_static, GRIPPER_GEOM_GROUP)
@@ -104,6 +111,14 @@ class LiftState:
         m.opt.iterations = params.iterations
         m.opt.ls_iterations = params.ls_iterations
         return m
+
+    def _bound_pad_sink(self, m: mujoco.MjModel, params: LiftParams, ix) -> BoundedContact:
+        """``params.pad_sink``: ``bounded`` shortens the gripper's contact time constant (and the timestep) in ``m``
+        for light objects (:func:`graspgen.sim.pad_sink.bounded_contact`); ``model`` leaves ``m`` as it is."""
+        grip = np.flatnonzero(ix.geom_is_gripper)
+        if params.pad_sink == "model":
+            return BoundedContact(float(m.geom_solref[grip, 0].min()), 1, math.nan)
+        return bounded_contact(m, grip, ix.objects, self.grip_force)
 
     @staticmethod
     def _initial_qpos(m: mujoco.MjModel, qpos) -> np.ndarray:
@@ -266,7 +281,7 @@ class LiftState:
         m, d = self.model, self.data
         step = mujoco.mj_step  # looked up per call, not at import: bench/bench_rollouts.py wraps it to time it
         mpos, mquat = self._mocap_pos, self._mocap_quat
-        n, k = len(positions), self.params.check_interval
+        n, k = len(positions), self.check_interval
         for c0 in range(0, n, k):
             c1 = min(c0 + k, n)
             if quats is None:
@@ -286,7 +301,7 @@ class LiftState:
     def _wait(self, n: int, phase: str, check, observer) -> None:
         """Step ``n`` times with the targets fixed, ``check`` every ``check_interval`` steps and at the end."""
         m, d = self.model, self.data
-        k = self.params.check_interval
+        k = self.check_interval
         done = 0
         while done < n:
             c = min(k, n - done)
@@ -300,7 +315,7 @@ class LiftState:
     def _close(self, observer) -> None:
         """The closing phase: command ``min_width`` and step until the jaws stop or ``close_timeout``."""
         self._ctrl[self.index.act] = self.min_width
-        tol = closing_tolerance(self.params, self._dt)  # width change per check interval
+        tol = closing_tolerance(self.params, self._dt * self.check_interval)  # width change per check interval
         last = [self.width()]
 
         def check_closing(phase: str) -> None:

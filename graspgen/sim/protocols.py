@@ -42,24 +42,15 @@ from graspgen.validation import (
 from shared_utils.keys import KEY_NAME, KEY_OMIT_DEFAULT, KEY_VALUES
 from shared_utils.renames import RENAMED_FROM, RENAMED_VALUES, renamed_message
 
-__all__ = [
-    "Outcome",
-    "OUTCOME_NAMES",
-    "PAD_TORSION",
-    "PHASES",
-    "PROTOCOLS",
-    "PROTOCOL_KEYS",
-    "RENAMED_PROTOCOLS",
-    "AcronymParams",
-    "GraspDataGenParams",
-    "LiftParams",
-    "RolloutResult",
-    "check_protocol",
-]
+__all__ = ["Outcome", "OUTCOME_NAMES", "PAD_SINK", "PAD_TORSION", "PHASES", "PROTOCOLS", "PROTOCOL_KEYS",
+           "RENAMED_PROTOCOLS", "AcronymParams", "GraspDataGenParams", "LiftParams", "RolloutResult", "check_protocol"]
 
 
 PAD_TORSION = ("face", "patch")
 """The pads' torsional friction models (:attr:`LiftParams.pad_torsion`)."""
+
+PAD_SINK = ("bounded", "model")
+"""How deep the pads may sink into a light object (:attr:`LiftParams.pad_sink`)."""
 
 
 class Outcome(enum.IntEnum):
@@ -459,6 +450,9 @@ class LiftParams:
     """The pads' torsional friction arm: ``"patch"``, that of the pressure the target puts on the pad's face once
     the jaws have closed (:mod:`graspgen.sim.pad_patch`), or ``"face"``, the whole pad face's for every grasp
     (:func:`graspgen.sim.gripper_model.pad_torsion_arm`, the upper end)."""
+    pad_sink: str = field(default="bounded", metadata={KEY_OMIT_DEFAULT: True})
+    """``"bounded"``: the pads sink no deeper than the gripper's impedance width into the scene's lightest object
+    (:mod:`graspgen.sim.pad_sink`); ``"model"``: the gripper model's contact whatever the object's mass."""
 
     def __post_init__(self) -> None:
         check_protocol("protocol", self.protocol)
@@ -485,6 +479,7 @@ class LiftParams:
         object.__setattr__(self, "iterations", check_int("iterations", self.iterations, low=1))
         object.__setattr__(self, "ls_iterations", check_int("ls_iterations", self.ls_iterations, low=1))
         check_choice("pad_torsion", self.pad_torsion, PAD_TORSION)
+        check_choice("pad_sink", self.pad_sink, PAD_SINK)
         self.physics_options((0.0, 0.0, -9.81))  # validates timestep, cone, impratio, integrator (names the field)
 
     def physics_options(self, gravity) -> PhysicsOptions:

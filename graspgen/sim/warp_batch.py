@@ -93,8 +93,8 @@ class BatchRun:
         """``(n,)`` the target body of each world."""
         self.roles = np.array([states[i % n]["roles"] for i in range(self.B)])
         """``(nworld, ngeom)`` the geom roles of each world (unused worlds repeat real ones)."""
-        self.K = sim.params.check_interval
-        self.tol = closing_tolerance(sim.params, cpu.schedule.dt)
+        self.K = cpu.check_interval
+        self.tol = closing_tolerance(sim.params, cpu.schedule.dt * cpu.check_interval)
         before = self._before_closing()
         self.C = len(before)
         """Index of closing in :attr:`plan`."""
