@@ -35,15 +35,15 @@ FLOAT_Z = 0.5  # m, where the box floats
 pytestmark = pytest.mark.usefixtures("no_mujoco_log_in_repo")
 
 
-def _world(friction: float = 0.5, solver=None) -> mujoco.MjModel:
-    """A free 50 mm box ``obj/0_box`` (0.2 kg) floating at z = 0.5 m and the Panda."""
+def _world(friction: float = 0.5, solver=None, mass: float = 0.2) -> mujoco.MjModel:
+    """A free 50 mm box ``obj/0_box`` (``mass`` kg) floating at z = 0.5 m and the Panda."""
     spec = mujoco.MjSpec()
     physics_options(spec)
     if solver is not None:
         spec.option.solver = solver
     body = spec.worldbody.add_body(name="obj/0_box", pos=[0, 0, FLOAT_Z])
     body.add_freejoint(name="obj/0_box/free")
-    body.add_geom(name="obj/0_box/geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[HALF] * 3, mass=0.2,
+    body.add_geom(name="obj/0_box/geom", type=mujoco.mjtGeom.mjGEOM_BOX, size=[HALF] * 3, mass=mass,
                   friction=[friction, 0.005, 0.0001])
     attach_gripper(spec, load_gripper("panda"))
     return spec.compile()
@@ -181,6 +181,27 @@ def test_both_backends_label_analytic_grasps_alike_on_the_cpu_device(protocol, p
         sim.rollouts(poses[:2], "obj/0_box")
         pads = sim.cpu.pad_patch.pad_geoms
         assert sim.world_friction.numpy()[:, pads, 1].min() > 0.0
+
+
+@pytest.mark.warp
+def test_a_light_objects_bounded_contact_and_divided_timestep_reach_the_device():
+    """A 2 g box: the CPU backend shortens the pads' time constant and divides the timestep (graspgen.sim.pad_sink);
+    the device runs the same model, so it closes to the same width in the same steps (the gripper model's contact
+    would let the pads sink about 1 mm deeper on each side)."""
+    pytest.importorskip("mujoco_warp")
+    pytest.importorskip("warp")
+    params = P.LiftParams(protocol="acronym")
+    model = _world(mass=0.002)
+    poses = np.array([SIDE, TOP])
+    cpu = L.LiftSimulator(model, params)
+    assert cpu.contact.substeps > 1
+    ref = [cpu.rollout(T, 2 * HALF, "obj/0_box") for T in poses]
+    got = W.WarpLiftSimulator(model, params, W.WarpParams(device="cpu", nworld=2)).rollouts(poses, "obj/0_box")
+    assert [r.code for r in ref] == [r.code for r in got] == [5, 5]
+    for a, b in zip(ref, got):
+        assert abs(a.steps - b.steps) <= cpu.check_interval
+        assert math.isclose(a.closed_width, b.closed_width, abs_tol=1e-4)
+        assert 2 * HALF - b.closed_width < 2 * 0.001  # each pad within its 1 mm compliance
 
 
 # ------------------------------------------------------------------------------------ evaluate_grasps(backend=...)
