@@ -444,6 +444,8 @@ def main(argv: list[str] | None = None) -> int:
                     "core (acronym when --protocols is empty)")
     ap.add_argument("--robustness", type=int, default=0, help="perturbed copies per success for the robustness AUC")
     ap.add_argument("--gripper", default="panda")
+    ap.add_argument("--pad-sink", default=LiftParams().pad_sink, choices=("bounded", "model"),
+                    help="LiftParams.pad_sink: the pads' sink into light objects bounded (default) or the model's")
     add_calibration_option(ap)
     ap.add_argument("--cache-dir", type=Path, default=REPO / ".cache", help="CoACD cache (as run.cache_dir)")
     ap.add_argument("--out", type=Path, default=RESULTS)
@@ -453,14 +455,14 @@ def main(argv: list[str] | None = None) -> int:
     report: dict = {"limit": args.limit, "calibration": str(args.calibration),
                     "firm_tolerances": {"translation": LiftParams().firm_translation,
                                         "rotation": LiftParams().firm_rotation},
-                    "gripper": gripper_info(args.gripper), "protocols": {},
+                    "gripper": gripper_info(args.gripper), "pad_sink": args.pad_sink, "protocols": {},
                     "acronym_params": AcronymParams().to_dict(), "graspdatagen_params": GraspDataGenParams().to_dict(),
                     "machine": platform.platform(),
                     "mujoco": mujoco.__version__}
     g = report["gripper"]
     print(f"gripper {g['name']}: geoms {g['geoms']}; {g['source'][:160]}")
     for protocol in protocols:
-        lift = LiftParams().with_protocol(protocol)
+        lift = dataclasses.replace(LiftParams().with_protocol(protocol), pad_sink=args.pad_sink)
         report["protocols"][protocol] = run_protocol(cases, lift, args, protocol)
         kind = {"table": "free space, shake on", "acronym": "ACRONYM", "graspdatagen": "GraspDataGen"}[protocol]
         print_protocol(f"{protocol} protocol ({kind})",
