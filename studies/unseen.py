@@ -156,6 +156,7 @@ def summary(files: Path, evals: dict[str, Path], picks: Path | None) -> dict:
     for net, path in evals.items():
         report = json.loads(path.read_text())
         result[net] = {k: report.get(k) for k in ("n", "auc", "ap", "mean_object_auc", "base_rate")}
+        result[net]["per_object"] = {r["name"]: r["auc"] for r in report.get("per_object", [])}
     result["object_rate_auc"] = object_rate_auc(h5)
     rows = [json.loads(p.read_text()) | {"name": p.stem} for p in sorted(picks.glob("*.json"))] if picks else []
     if rows:
